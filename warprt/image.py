@@ -1,0 +1,109 @@
+"""Writing images: float32 EXR (linear) and 8-bit PNG (sRGB), always atomically.
+
+* ``.exr``: float32 linear RGB through OpenEXR (ZIP compression); extra header attributes
+  (``metadata``) are stored as strings, ints or floats, e.g. the samples per pixel reached.
+* ``.png``: linear values are clamped to [0, 1] (values above 1 clip to white: no tone mapping),
+  NaN becomes 0, then the sRGB transfer curve is applied and values are rounded to 8 bits.
+
+A file is written to a temporary name in the destination folder and renamed into place, so a
+crash or Ctrl-C never leaves a truncated image, and an existing file is replaced only by a
+complete one.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from typing import Mapping
+
+import numpy as np
+
+from .errors import RenderError
+
+FORMATS = (".exr", ".png")
+
+
+def _check_image(image) -> np.ndarray:
+    a = np.asarray(image)
+    if a.ndim == 2:
+        a = np.repeat(a[:, :, None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] == 0 or a.shape[1] == 0:
+        raise RenderError(f"an image must have shape (H, W, 3), (H, W, 4) or (H, W), got {a.shape}")
+    if not np.issubdtype(a.dtype, np.number):
+        raise RenderError(f"an image must hold numbers, got dtype {a.dtype}")
+    return a.astype(np.float32, copy=False)
+
+
+def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
+    x = np.nan_to_num(np.asarray(image, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+    x = np.clip(x, 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+    return np.clip(np.round(s * 255.0), 0, 255).astype(np.uint8)
+
+
+def _atomic_write(path: str, write) -> None:
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise RenderError(f"{path}: the folder {folder!r} does not exist")
+    ext = os.path.splitext(path)[1]
+    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp" + ext, dir=folder)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None) -> None:
+    """Write ``image`` (H, W, 3 linear float) to ``path``; the format follows the extension."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FORMATS:
+        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    a = _check_image(image)
+    if ext == ".png":
+        from PIL import Image
+
+        rgb8 = linear_to_srgb8(a[:, :, :3])
+        _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG"))
+        return
+    write_exr(path, {"RGB": a[:, :, :3]}, metadata)
+
+
+def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str, object] | None = None) -> None:
+    """Write named float32 channels/layers to one EXR file (``RGB`` is the colour)."""
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in (metadata or {}).items():
+        if isinstance(v, bool):
+            v = int(v)
+        if not isinstance(v, (int, float, str)):
+            v = str(v)
+        header[str(k)] = v
+    channels = {name: np.ascontiguousarray(np.asarray(data, dtype=np.float32)) for name, data in layers.items()}
+
+    def write(p):
+        with OpenEXR.File(header, channels) as f:
+            f.write(p)
+
+    _atomic_write(path, write)
+
+
+def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
+    """Read an EXR written by warprt: the RGB image (H, W, 3) float32 and the header."""
+    import OpenEXR
+
+    with OpenEXR.File(os.fspath(path)) as f:
+        header = dict(f.header())
+        ch = f.channels()
+        if "RGB" in ch:
+            rgb = np.asarray(ch["RGB"].pixels, dtype=np.float32)
+        else:
+            rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+    return rgb, header

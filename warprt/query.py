@@ -1,0 +1,136 @@
+"""Ray queries outside rendering: camera rays and nearest hits for arbitrary rays.
+
+``camera_rays(scene)`` returns the rays the renderer shoots through pixel centres (or any raster
+points), and ``trace_rays(scene, origins, directions)`` the nearest hit of each ray, with the
+shape it belongs to. Both run on the device with the same device functions as the render kernel,
+so tests can check the renderer's geometry against closed forms, and pipelines can use warprt as
+a ray caster (lidar-like sensors, picking).
+
+The query kernels live in one Warp module built for every feature (compiled once per process
+when first used, then loaded from Warp's cache).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import warp as wp
+
+from . import _warp
+from .build import KIND_NONE, CameraData, DeviceScene, Features, SceneData
+from .errors import RenderError
+from .integrator import camera_ray, kernels_for
+from .scene.description import Scene
+
+_lock = threading.Lock()
+_kernels: dict[str, object] = {}
+
+
+def _query_kernels():
+    with _lock:
+        if _kernels:
+            return _kernels["camera"], _kernels["trace"]
+        _, closest_hit = kernels_for(Features.full())
+
+        @wp.kernel(module="warprt_query", enable_backward=False)
+        def camera_kernel(cam: CameraData, fx: wp.array(dtype=float), fy: wp.array(dtype=float),
+                          lens: wp.array(dtype=wp.vec2), time: float,
+                          origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3)):
+            i = wp.tid()
+            r = camera_ray(cam, fx[i], fy[i], lens[i], time)
+            origins[i] = r.o
+            dirs[i] = r.d
+
+        @wp.kernel(module="warprt_query", enable_backward=False)
+        def trace_kernel(scene: SceneData, origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
+                         t_min: float, t_max: float, time: float,
+                         out_t: wp.array(dtype=float), out_p: wp.array(dtype=wp.vec3),
+                         out_n: wp.array(dtype=wp.vec3), out_ns: wp.array(dtype=wp.vec3),
+                         out_kind: wp.array(dtype=int), out_index: wp.array(dtype=int)):
+            i = wp.tid()
+            d = dirs[i]
+            h = closest_hit(scene, origins[i], wp.normalize(d), t_min, t_max, time)
+            out_t[i] = h.t
+            out_kind[i] = h.kind
+            out_index[i] = h.index
+            if h.kind != -1:
+                out_p[i] = h.p
+                out_n[i] = h.ng
+                out_ns[i] = h.ns
+
+        _kernels["camera"], _kernels["trace"] = camera_kernel, trace_kernel
+        return camera_kernel, trace_kernel
+
+
+def _built(scene, device) -> DeviceScene:
+    from .render import Renderer
+
+    if isinstance(scene, Renderer):
+        return scene.built
+    if not isinstance(scene, Scene):
+        raise RenderError(f"expected a warprt.Scene or Renderer, got {type(scene).__name__}")
+    return DeviceScene(scene, _warp.resolve_device(device))
+
+
+def camera_rays(scene: Scene, points=None, lens=None, time: float = 0.0, device: str | None = None):
+    """Camera rays (origins, unit directions), each (N, 3) float32 numpy.
+
+    ``points`` are raster positions (N, 2) in pixels, x right and y down from the top-left corner;
+    by default every pixel centre in row-major order (pixel (i, j) at (i + 0.5, j + 0.5)).
+    ``lens`` are (N, 2) lens samples in [0, 1)^2 (ignored by a pinhole camera).
+    """
+    _warp.init()
+    dev = _warp.resolve_device(device)
+    cam = scene.camera
+    if points is None:
+        jj, ii = np.mgrid[0:cam.height, 0:cam.width]
+        points = np.stack([ii.ravel() + 0.5, jj.ravel() + 0.5], axis=1)
+    points = np.asarray(points, dtype=np.float32).reshape(-1, 2)
+    n = len(points)
+    lens = np.full((n, 2), 0.5, np.float32) if lens is None else np.asarray(lens, np.float32).reshape(n, 2)
+    from .build import camera_data
+
+    camera_kernel, _ = _query_kernels()
+    origins = wp.zeros(n, dtype=wp.vec3, device=dev)
+    dirs = wp.zeros(n, dtype=wp.vec3, device=dev)
+    wp.launch(camera_kernel, dim=n, device=dev,
+              inputs=[camera_data(scene), wp.array(points[:, 0].copy(), dtype=float, device=dev),
+                      wp.array(points[:, 1].copy(), dtype=float, device=dev), wp.array(lens, dtype=wp.vec2, device=dev),
+                      float(time), origins, dirs])
+    return origins.numpy(), dirs.numpy()
+
+
+def trace_rays(scene, origins, directions, t_min: float = 0.0, t_max: float = np.inf, time: float = 0.0,
+               device: str | None = None) -> dict[str, np.ndarray]:
+    """Nearest hit of each ray (directions need not be unit: they are normalised, so t is a distance).
+
+    Returns a dict of numpy arrays: ``hit`` (bool), ``t`` (inf for a miss), ``position``,
+    ``normal`` (unit geometric normal as the shape defines it, not turned to the ray),
+    ``shading_normal``, and ``shape`` (index into ``scene.shapes``; -1 for a miss or an area
+    light's own surface).
+    """
+    _warp.init()
+    built = _built(scene, device)
+    dev = built.device
+    o = np.asarray(origins, dtype=np.float32).reshape(-1, 3)
+    d = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
+    if o.shape != d.shape:
+        raise RenderError(f"origins and directions differ in shape: {o.shape} vs {d.shape}")
+    if not (np.isfinite(o).all() and np.isfinite(d).all()):
+        raise RenderError("origins and directions must be finite")
+    if (np.linalg.norm(d, axis=1) == 0).any():
+        raise RenderError("every direction must be non-zero")
+    n = len(o)
+    _, trace_kernel = _query_kernels()
+    out = [wp.zeros(n, dtype=t, device=dev) for t in (float, wp.vec3, wp.vec3, wp.vec3, int, int)]
+    wp.launch(trace_kernel, dim=n, device=dev,
+              inputs=[built.data, wp.array(o, dtype=wp.vec3, device=dev), wp.array(d, dtype=wp.vec3, device=dev),
+                      float(t_min), float(min(t_max, 3.0e38)), float(time), *out])
+    t, p, ng, ns, kind, index = (a.numpy() for a in out)
+    hit = kind != KIND_NONE
+    lookup = {ki: i for i, ki in enumerate(built.shape_ids)}
+    shape = np.array([lookup.get((int(k), int(j)), -1) if h else -1 for k, j, h in zip(kind, index, hit)],
+                     dtype=np.int64)
+    return {"hit": hit, "t": np.where(hit, t, np.inf).astype(np.float32), "position": p, "normal": ng,
+            "shading_normal": ns, "shape": shape}

@@ -1,0 +1,233 @@
+"""Render a scene: build it on a device, pick its kernel, run passes over tiles, return the image.
+
+Parallelism: a Warp launch on the CPU runs on one core, so the frame is cut into square tiles
+that a pool of worker threads (one per core) takes from a shared queue; on CUDA each pass is one
+launch over the whole frame. A thread owns a pixel for the whole pass and adds its samples in
+order, and every random number depends only on (seed, pixel, sample, dimension): the image is
+bit-identical for any tile size, worker count or pass split.
+
+Progressive rendering: the samples are split into passes (a first pass of one sample per pixel,
+then passes sized to take about half a second). ``time_budget`` stops after the pass that reaches
+the budget, ``target_error`` after the pass whose estimated relative standard error falls below
+it; Ctrl-C finishes the running pass and returns what was accumulated. ``RenderResult.spp`` says
+how many samples per pixel the image holds.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import threading
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from . import _warp
+from .build import DeviceScene, Features, render_params
+from .errors import RenderError
+from .integrator import kernels_for
+from .scene.description import Scene
+
+
+@dataclass
+class RenderResult:
+    image: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top
+    spp: int  # samples per pixel in the image
+    wall_time: float  # seconds spent in the passes (excludes build and compile)
+    rays: int  # camera, secondary and shadow rays traced
+    stack_overflows: int  # rays dropped because a pixel's ray stack was full
+    features: Features
+    device: str
+    interrupted: bool = False  # stopped by Ctrl-C
+    relative_error: float | None = None  # estimated relative standard error of the mean
+
+    @property
+    def mrays_per_s(self) -> float:
+        return self.rays / self.wall_time / 1e6 if self.wall_time > 0 else float("nan")
+
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _tiles(width: int, height: int, size: int) -> list[tuple[int, int, int, int]]:
+    return [(x, y, min(size, width - x), min(size, height - y))
+            for y in range(0, height, size) for x in range(0, width, size)]
+
+
+class Renderer:
+    """A scene built on one device, ready to render any number of times.
+
+    ``features`` may name a superset of what the scene needs (e.g. ``Features.full()``) to run
+    a more general kernel; by default the kernel is specialised to the scene.
+    """
+
+    def __init__(self, scene: Scene, device: str | None = None, features: Features | None = None):
+        if not isinstance(scene, Scene):
+            raise RenderError(f"render() needs a warprt.Scene, got {type(scene).__name__}")
+        self.device = _warp.resolve_device(device)
+        self.scene = scene
+        self.built = DeviceScene(scene, self.device)
+        self.features = self.built.features if features is None else self.built.features.union(features)
+        self.kernel, self.closest_hit = kernels_for(self.features)
+
+    def compile(self) -> float:
+        """Load the kernel on this device, compiling it when Warp's cache lacks it; returns seconds.
+
+        Done by an empty launch from the calling thread, so that the worker threads never race
+        to build the same module (a CPU launch loads its own variant of the module).
+        """
+        start = _time.perf_counter()
+        dev = self.device
+        one = [wp.zeros(1, dtype=t, device=dev) for t in (wp.vec3, float, int, int)]
+        wp.launch(self.kernel, dim=1, device=dev,
+                  inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0), 0, 0, 1, 1, 0, 0, *one])
+        wp.synchronize_device(dev)
+        return _time.perf_counter() - start
+
+    def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
+               tile_size: int = 16, pass_spp: int | None = None, time_budget: float | None = None,
+               target_error: float | None = None, progress: bool | None = None) -> RenderResult:
+        spp = self.scene.render.spp if spp is None else spp
+        if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+            raise RenderError(f"spp must be a positive integer, got {spp!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise RenderError(f"seed must be an integer, got {seed!r}")
+        if not isinstance(tile_size, (int, np.integer)) or tile_size < 1:
+            raise RenderError(f"tile_size must be a positive integer, got {tile_size!r}")
+        if time_budget is not None and not (time_budget > 0):
+            raise RenderError(f"time_budget must be positive seconds, got {time_budget!r}")
+        if target_error is not None and not (target_error > 0):
+            raise RenderError(f"target_error must be positive, got {target_error!r}")
+        if pass_spp is not None and (not isinstance(pass_spp, (int, np.integer)) or pass_spp < 1):
+            raise RenderError(f"pass_spp must be a positive integer, got {pass_spp!r}")
+        workers = default_workers() if workers is None else workers
+        if not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise RenderError(f"workers must be a positive integer, got {workers!r}")
+
+        cam = self.scene.camera
+        width, height, dev = cam.width, cam.height, self.device
+        n = width * height
+        accum = wp.zeros(n, dtype=wp.vec3, device=dev)
+        accum_sq = wp.zeros(n, dtype=float, device=dev)
+        ray_count = wp.zeros(n, dtype=int, device=dev)
+        overflow = wp.zeros(n, dtype=int, device=dev)
+        params = render_params(self.scene, int(spp), int(seed))
+        self.compile()
+
+        tiles = _tiles(width, height, tile_size) if dev.is_cpu else [(0, 0, width, height)]
+
+        def launch(tile, s0, s1):
+            x0, y0, tw, th = tile
+            wp.launch(self.kernel, dim=tw * th, device=dev,
+                      inputs=[self.built.data, self.built.camera, params, x0, y0, tw, th, s0, s1,
+                              accum, accum_sq, ray_count, overflow])
+
+        def run_pass(s0: int, s1: int) -> None:
+            """Run samples [s0, s1) on every tile, from worker threads (also with one worker, so
+            that a Ctrl-C reaching the main thread never splits a launch). The interrupt is held
+            until the pass is complete, so every pixel holds the same number of samples."""
+            stop = False
+            next_tile = iter(tiles)
+            lock = threading.Lock()
+            errors: list[BaseException] = []
+
+            def work():
+                while True:
+                    with lock:
+                        tile = next(next_tile, None)
+                    if tile is None or errors:
+                        return
+                    try:
+                        launch(tile, s0, s1)
+                    except BaseException as e:  # surfaced in the caller
+                        errors.append(e)
+                        return
+
+            threads = [threading.Thread(target=work, daemon=True) for _ in range(min(workers, len(tiles)))]
+            for t in threads:
+                t.start()
+            for t in threads:
+                while t.is_alive():
+                    try:
+                        t.join(timeout=0.1)
+                    except KeyboardInterrupt:
+                        stop = True
+            if errors:
+                raise errors[0]
+            if stop:
+                raise KeyboardInterrupt
+
+        show = (sys.stderr.isatty() if progress is None else progress)
+        bar = None
+        if show:
+            from tqdm import tqdm
+
+            bar = tqdm(total=int(spp), unit="spp", desc="render", delay=0.5, leave=False, file=sys.stderr)
+
+        done, interrupted, rel_err = 0, False, None
+        elapsed = 0.0
+        start = _time.perf_counter()
+        try:
+            while done < spp:
+                size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
+                size = min(size, spp - done)
+                try:
+                    run_pass(done, done + size)
+                except KeyboardInterrupt:
+                    interrupted = True
+                wp.synchronize_device(dev)
+                done += size
+                elapsed = _time.perf_counter() - start
+                if bar is not None:
+                    bar.update(size)
+                if interrupted or (time_budget is not None and elapsed >= time_budget):
+                    break
+                if target_error is not None and done >= 2:
+                    rel_err = _relative_error(accum, accum_sq, done)
+                    if rel_err <= target_error:
+                        break
+        finally:
+            if bar is not None:
+                bar.close()
+        wall = _time.perf_counter() - start
+        if target_error is not None and rel_err is None and done >= 2:
+            rel_err = _relative_error(accum, accum_sq, done)
+        image = (accum.numpy() / np.float32(done)).reshape(height, width, 3).astype(np.float32)
+        return RenderResult(image=image, spp=done, wall_time=wall, rays=int(ray_count.numpy().sum(dtype=np.int64)),
+                            stack_overflows=int(overflow.numpy().sum(dtype=np.int64)), features=self.features,
+                            device=str(dev), interrupted=interrupted, relative_error=rel_err)
+
+    @staticmethod
+    def _next_pass(done: int, elapsed: float, pass_spp: int | None, time_budget: float | None) -> int:
+        if pass_spp is not None:
+            return pass_spp
+        per_spp = max(elapsed / done, 1e-6)
+        target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
+        return max(1, int(target / per_spp))
+
+
+def _relative_error(accum: wp.array, accum_sq: wp.array, n: int) -> float:
+    """RMS over pixels of the standard error of each pixel's mean luminance, over the mean luminance."""
+    rgb = accum.numpy().astype(np.float64) / n
+    y = 0.2126 * rgb[:, 0] + 0.7152 * rgb[:, 1] + 0.0722 * rgb[:, 2]
+    var = np.maximum(accum_sq.numpy().astype(np.float64) / n - y * y, 0.0) * n / max(n - 1, 1)
+    mean = float(y.mean())
+    return math.sqrt(float(var.mean()) / n) / mean if mean > 0 else 0.0
+
+
+def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | None = None, **options) -> np.ndarray:
+    """Render ``scene`` and return linear radiance as a float32 (H, W, 3) array, row 0 at the top.
+
+    ``spp`` defaults to the scene's ``render.spp``; ``seed`` picks the noise (the same seed gives
+    the same image bit for bit). Further options (``workers``, ``tile_size``, ``time_budget``,
+    ``target_error``, ``progress``...) are those of :meth:`Renderer.render`; use
+    :class:`Renderer` directly for the statistics (:class:`RenderResult`).
+    """
+    return Renderer(scene, device=device).render(spp=spp, seed=seed, **options).image

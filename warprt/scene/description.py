@@ -1,0 +1,683 @@
+"""Scene description: frozen dataclasses with defaults and validation.
+
+Conventions (the whole renderer follows them):
+
+* right-handed world, y up; the camera looks along -w, where w = normalize(eye - look_at);
+* angles are degrees in scene descriptions, radians inside the code;
+* colours and radiance are linear RGB; a colour field accepts one number (grey) or three;
+* time runs over the camera shutter [open, close]; a moving object gives its pose at time 0
+  (``center``/``transform``) and at time 1 (``center_end``/``transform_end``), and is linearly
+  interpolated (rotations by slerp) in between and beyond.
+
+The TOML loader (:mod:`warprt.scene.loader`) and the Python API build the same objects. Every
+class validates itself in ``__post_init__`` and raises :class:`warprt.SceneError` naming the
+field; the loader adds the file name and the position in the file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import SceneError
+
+Vec3 = tuple[float, float, float]
+RGB = tuple[float, float, float]
+
+SAMPLERS = ("regular", "independent", "stratified", "sobol")
+FALLOFFS = ("none", "inverse_square")
+FRESNEL_MODES = ("none", "schlick", "exact")
+MAX_DEPTH_LIMIT = 64
+
+
+# --- coercion helpers (raise SceneError naming the field) ------------------------------------
+
+
+def _finite(x: float, name: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise SceneError(f"expected a number, got {x!r}", name)
+    x = float(x)
+    if not math.isfinite(x):
+        raise SceneError(f"must be finite, got {x}", name)
+    return x
+
+
+def as_float(x: Any, name: str, *, minimum: float | None = None, maximum: float | None = None,
+             strict_min: bool = False) -> float:
+    x = _finite(x, name)
+    if minimum is not None and (x < minimum or (strict_min and x == minimum)):
+        raise SceneError(f"must be {'>' if strict_min else '>='} {minimum:g}, got {x:g}", name)
+    if maximum is not None and x > maximum:
+        raise SceneError(f"must be <= {maximum:g}, got {x:g}", name)
+    return x
+
+
+def as_int(x: Any, name: str, *, minimum: int | None = None, maximum: int | None = None) -> int:
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
+        if isinstance(x, float) and x.is_integer():
+            x = int(x)
+        else:
+            raise SceneError(f"expected an integer, got {x!r}", name)
+    x = int(x)
+    if minimum is not None and x < minimum:
+        raise SceneError(f"must be >= {minimum}, got {x}", name)
+    if maximum is not None and x > maximum:
+        raise SceneError(f"must be <= {maximum}, got {x}", name)
+    return x
+
+
+def as_vec3(x: Any, name: str) -> Vec3:
+    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
+        raise SceneError(f"expected three numbers [x, y, z], got {x!r}", name)
+    return tuple(_finite(v, f"{name}[{i}]") for i, v in enumerate(x))  # type: ignore[return-value]
+
+
+def as_direction(x: Any, name: str) -> Vec3:
+    v = as_vec3(x, name)
+    n = math.sqrt(sum(c * c for c in v))
+    if n == 0.0 or not math.isfinite(n):
+        raise SceneError("must be a non-zero vector", name)
+    return v
+
+
+def as_rgb(x: Any, name: str, *, maximum: float | None = None) -> RGB:
+    """A colour: one number (grey) or three, each finite and >= 0."""
+    if isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool):
+        c = as_float(x, name, minimum=0.0, maximum=maximum)
+        return (c, c, c)
+    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
+        raise SceneError(f"expected a colour: one number or three [r, g, b], got {x!r}", name)
+    return tuple(as_float(v, f"{name}[{i}]", minimum=0.0, maximum=maximum) for i, v in enumerate(x))  # type: ignore
+
+
+def as_choice(x: Any, name: str, choices: Sequence[str]) -> str:
+    if not isinstance(x, str) or x not in choices:
+        raise SceneError(f"must be one of {', '.join(repr(c) for c in choices)}, got {x!r}", name)
+    return x
+
+
+def _set(obj: Any, name: str, value: Any) -> None:
+    object.__setattr__(obj, name, value)
+
+
+def _norm(v: Sequence[float]) -> float:
+    return math.sqrt(sum(c * c for c in v))
+
+
+# --- transforms ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Transform:
+    """Scale, then rotate (Euler angles in degrees about x, then y, then z), then translate."""
+
+    translate: Vec3 = (0.0, 0.0, 0.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)  # degrees about x, then y, then z (extrinsic)
+    scale: Vec3 | float = (1.0, 1.0, 1.0)
+
+    def __post_init__(self):
+        _set(self, "translate", as_vec3(self.translate, "translate"))
+        _set(self, "rotate", as_vec3(self.rotate, "rotate"))
+        s = self.scale
+        if isinstance(s, (int, float, np.integer, np.floating)) and not isinstance(s, bool):
+            s = (s, s, s)
+        s = as_vec3(s, "scale")
+        if any(c == 0.0 for c in s):
+            raise SceneError(f"must be non-zero on every axis, got {list(s)}", "scale")
+        _set(self, "scale", s)
+
+    @property
+    def is_identity(self) -> bool:
+        return self == Transform()
+
+    @property
+    def uniform_scale(self) -> float | None:
+        s = self.scale
+        return s[0] if s[0] == s[1] == s[2] and s[0] > 0 else None
+
+    def rotation_matrix(self) -> np.ndarray:
+        rx, ry, rz = (math.radians(a) for a in self.rotate)
+        cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
+        mx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        my = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        mz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        return mz @ my @ mx
+
+    def quaternion(self) -> np.ndarray:
+        """Rotation as a unit quaternion (x, y, z, w), Warp's layout."""
+        m = self.rotation_matrix()
+        tr = np.trace(m)
+        if tr > 0:
+            s = math.sqrt(tr + 1.0) * 2
+            q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
+        elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+            s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+            q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+        elif m[1, 1] > m[2, 2]:
+            s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+            q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+        else:
+            s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+            q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
+        q = np.asarray(q)
+        return q / np.linalg.norm(q)
+
+    def matrix(self) -> np.ndarray:
+        """The 4x4 affine matrix mapping object space to world space."""
+        m = np.eye(4)
+        m[:3, :3] = self.rotation_matrix() @ np.diag(self.scale)
+        m[:3, 3] = self.translate
+        return m
+
+    def apply_point(self, p: Sequence[float]) -> Vec3:
+        return tuple(float(c) for c in self.matrix() @ np.array([*p, 1.0]))[:3]  # type: ignore
+
+    def apply_vector(self, v: Sequence[float]) -> Vec3:
+        return tuple(float(c) for c in self.matrix()[:3, :3] @ np.asarray(v, dtype=float))  # type: ignore
+
+    def apply_normal(self, n: Sequence[float]) -> Vec3:
+        m = np.linalg.inv(self.matrix()[:3, :3]).T @ np.asarray(n, dtype=float)
+        return tuple(float(c) for c in m / np.linalg.norm(m))  # type: ignore
+
+
+def as_transform(x: Any, name: str) -> Transform | None:
+    if x is None or isinstance(x, Transform):
+        return x
+    if isinstance(x, Mapping):
+        unknown = set(x) - {"translate", "rotate", "scale"}
+        if unknown:
+            raise SceneError(f"unknown field(s) {sorted(unknown)}; expected translate, rotate, scale", name)
+        try:
+            return Transform(**x)
+        except SceneError as e:
+            raise e.within(name) from None
+    raise SceneError(f"expected a table with translate/rotate/scale, got {x!r}", name)
+
+
+# --- camera --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole or thin-lens camera.
+
+    The image plane sits at distance ``distance`` (the lecture's D) along -w; its half height is
+    D·tan(fov/2) and its half width that times width/height. Pixel (i, j), with j counted from the
+    top row, has its centre at raster position (i + 0.5, j + 0.5).
+    """
+
+    eye: Vec3 = (0.0, 0.0, 5.0)
+    look_at: Vec3 = (0.0, 0.0, 0.0)
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov: float = 45.0  # vertical field of view, degrees
+    width: int = 320  # pixels
+    height: int = 240  # pixels
+    distance: float = 1.0  # D: eye to image plane, scene units (does not change a pinhole image)
+    aperture: float = 0.0  # thin-lens radius, scene units; 0 is a pinhole
+    focus_distance: float | None = None  # distance of the plane in focus; default |look_at - eye|
+    shutter: tuple[float, float] = (0.0, 1.0)  # open and close times
+    eye_end: Vec3 | None = None  # eye at time 1 (camera motion)
+    look_at_end: Vec3 | None = None  # look_at at time 1
+
+    def __post_init__(self):
+        _set(self, "eye", as_vec3(self.eye, "eye"))
+        _set(self, "look_at", as_vec3(self.look_at, "look_at"))
+        _set(self, "up", as_direction(self.up, "up"))
+        _set(self, "fov", as_float(self.fov, "fov", minimum=0.0, strict_min=True))
+        if self.fov >= 180.0:
+            raise SceneError(f"must be < 180 degrees, got {self.fov:g}", "fov")
+        _set(self, "width", as_int(self.width, "width", minimum=1, maximum=1 << 15))
+        _set(self, "height", as_int(self.height, "height", minimum=1, maximum=1 << 15))
+        _set(self, "distance", as_float(self.distance, "distance", minimum=0.0, strict_min=True))
+        _set(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0))
+        if self.focus_distance is not None:
+            _set(self, "focus_distance",
+                 as_float(self.focus_distance, "focus_distance", minimum=0.0, strict_min=True))
+        sh = self.shutter
+        if isinstance(sh, (str, bytes)) or not isinstance(sh, (Sequence, np.ndarray)) or len(sh) != 2:
+            raise SceneError(f"expected [open, close], got {sh!r}", "shutter")
+        sh = (as_float(sh[0], "shutter[0]"), as_float(sh[1], "shutter[1]"))
+        if sh[1] < sh[0]:
+            raise SceneError(f"close time {sh[1]:g} is before open time {sh[0]:g}", "shutter")
+        _set(self, "shutter", sh)
+        if self.eye_end is not None:
+            _set(self, "eye_end", as_vec3(self.eye_end, "eye_end"))
+        if self.look_at_end is not None:
+            _set(self, "look_at_end", as_vec3(self.look_at_end, "look_at_end"))
+        for t in (0.0, 1.0):
+            self.basis(t)  # raises when the view is degenerate
+
+    @property
+    def aspect(self) -> float:
+        return self.width / self.height
+
+    @property
+    def moves(self) -> bool:
+        return (self.eye_end is not None and self.eye_end != self.eye) or (
+            self.look_at_end is not None and self.look_at_end != self.look_at)
+
+    @property
+    def focus(self) -> float:
+        if self.focus_distance is not None:
+            return self.focus_distance
+        return _norm(np.subtract(self.look_at, self.eye))
+
+    def pose(self, time: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        eye0, look0 = np.array(self.eye), np.array(self.look_at)
+        eye1 = np.array(self.eye_end) if self.eye_end is not None else eye0
+        look1 = np.array(self.look_at_end) if self.look_at_end is not None else look0
+        return eye0 + (eye1 - eye0) * time, look0 + (look1 - look0) * time
+
+    def basis(self, time: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The lecture's camera frame: w = normalize(eye - look_at), u = normalize(up x w), v = w x u."""
+        eye, look = self.pose(time)
+        w = eye - look
+        if np.linalg.norm(w) == 0.0:
+            raise SceneError("eye and look_at coincide", "look_at")
+        w = w / np.linalg.norm(w)
+        u = np.cross(np.asarray(self.up, dtype=float), w)
+        if np.linalg.norm(u) < 1e-9:
+            raise SceneError("up is parallel to the viewing direction", "up")
+        u = u / np.linalg.norm(u)
+        return u, np.cross(w, u), w
+
+    def witness_point(self, i: float, j: float, time: float = 0.0) -> np.ndarray:
+        """World position of raster point (i, j) on the image plane (j counted from the top)."""
+        u, v, w = self.basis(time)
+        eye, _ = self.pose(time)
+        top = self.distance * math.tan(math.radians(self.fov) / 2.0)
+        right = top * self.aspect
+        us = -right + 2.0 * right * i / self.width
+        vs = top - 2.0 * top * j / self.height
+        return eye + us * u + vs * v - self.distance * w
+
+
+# --- materials -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Material:
+    """Whitted/Phong material with the distribution extensions.
+
+    Local shading is L = ka·Ia + Σ_lights kd·I·max(0, n·l) + ks·I·max(0, n·h)^p. ``mirror`` (km)
+    weights the reflected ray and ``transparency`` (kt) the refracted one; with ``fresnel`` on,
+    the transmitted share kt is split into reflection F·kt and refraction (1-F)·kt.
+    """
+
+    kd: RGB = (0.8, 0.8, 0.8)  # diffuse reflectance
+    ka: RGB | None = None  # ambient reflectance; defaults to kd
+    ks: RGB = (0.0, 0.0, 0.0)  # Blinn-Phong specular coefficient
+    p: float = 32.0  # Blinn-Phong exponent
+    mirror: RGB = (0.0, 0.0, 0.0)  # km, mirror reflectance
+    transparency: RGB = (0.0, 0.0, 0.0)  # kt, refracted share
+    ior: float = 1.5  # index of refraction of the inside
+    fresnel: str = "none"  # "none", "schlick" or "exact" dielectric Fresnel for transparent surfaces
+    glossy_exponent: float = 0.0  # Phong lobe exponent around the mirror direction; 0 is a perfect mirror
+    frosted_exponent: float = 0.0  # lobe exponent around the refracted direction; 0 is clear glass
+
+    def __post_init__(self):
+        _set(self, "kd", as_rgb(self.kd, "kd"))
+        _set(self, "ka", self.kd if self.ka is None else as_rgb(self.ka, "ka"))
+        _set(self, "ks", as_rgb(self.ks, "ks"))
+        _set(self, "p", as_float(self.p, "p", minimum=0.0))
+        _set(self, "mirror", as_rgb(self.mirror, "mirror"))
+        _set(self, "transparency", as_rgb(self.transparency, "transparency"))
+        _set(self, "ior", as_float(self.ior, "ior", minimum=0.0, strict_min=True))
+        _set(self, "fresnel", as_choice(self.fresnel, "fresnel", FRESNEL_MODES))
+        _set(self, "glossy_exponent", as_float(self.glossy_exponent, "glossy_exponent", minimum=0.0))
+        _set(self, "frosted_exponent", as_float(self.frosted_exponent, "frosted_exponent", minimum=0.0))
+
+    @property
+    def reflects(self) -> bool:
+        return any(self.mirror) or (self.refracts and self.fresnel != "none")
+
+    @property
+    def refracts(self) -> bool:
+        return any(self.transparency)
+
+    @property
+    def glossy(self) -> bool:
+        return (self.reflects and self.glossy_exponent > 0) or (self.refracts and self.frosted_exponent > 0)
+
+
+DEFAULT_MATERIAL = "default"
+
+
+# --- shapes --------------------------------------------------------------------------------
+
+
+def _check_material(obj: Any) -> None:
+    if not isinstance(obj.material, str) or not obj.material:
+        raise SceneError(f"expected a material name, got {obj.material!r}", "material")
+
+
+@dataclass(frozen=True)
+class Sphere:
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = 1.0
+    material: str = DEFAULT_MATERIAL
+    center_end: Vec3 | None = None  # centre at time 1 (motion blur)
+    transform: Transform | None = None  # applied to the centre (translate, rotate, uniform scale)
+
+    def __post_init__(self):
+        _set(self, "center", as_vec3(self.center, "center"))
+        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        _check_material(self)
+        if self.center_end is not None:
+            _set(self, "center_end", as_vec3(self.center_end, "center_end"))
+        _set(self, "transform", as_transform(self.transform, "transform"))
+        if self.transform is not None and self.transform.uniform_scale is None:
+            raise SceneError("a sphere takes only a uniform positive scale (use a mesh for an ellipsoid)",
+                             "transform.scale")
+
+    def world(self) -> tuple[Vec3, Vec3, float]:
+        """Centre at time 0, centre at time 1 and radius, with the transform applied."""
+        c0, c1, r = self.center, self.center_end if self.center_end is not None else self.center, self.radius
+        if self.transform is not None:
+            c0, c1 = self.transform.apply_point(c0), self.transform.apply_point(c1)
+            r = r * self.transform.uniform_scale
+        return c0, c1, r
+
+
+@dataclass(frozen=True)
+class Plane:
+    point: Vec3 = (0.0, 0.0, 0.0)
+    normal: Vec3 = (0.0, 1.0, 0.0)
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+
+    def __post_init__(self):
+        _set(self, "point", as_vec3(self.point, "point"))
+        _set(self, "normal", as_direction(self.normal, "normal"))
+        _check_material(self)
+        _set(self, "transform", as_transform(self.transform, "transform"))
+
+    def world(self) -> tuple[Vec3, Vec3]:
+        p, n = self.point, self.normal
+        if self.transform is not None:
+            p, n = self.transform.apply_point(p), self.transform.apply_normal(n)
+        return p, tuple(c / _norm(n) for c in n)  # type: ignore
+
+
+@dataclass(frozen=True)
+class Rectangle:
+    """The parallelogram corner + a·edge1 + b·edge2 for a, b in [0, 1]; its normal is edge1 x edge2."""
+
+    corner: Vec3 = (-0.5, 0.0, -0.5)
+    edge1: Vec3 = (0.0, 0.0, 1.0)
+    edge2: Vec3 = (1.0, 0.0, 0.0)
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+
+    def __post_init__(self):
+        _set(self, "corner", as_vec3(self.corner, "corner"))
+        _set(self, "edge1", as_direction(self.edge1, "edge1"))
+        _set(self, "edge2", as_direction(self.edge2, "edge2"))
+        _check_material(self)
+        _set(self, "transform", as_transform(self.transform, "transform"))
+        if _norm(np.cross(self.edge1, self.edge2)) <= 1e-12 * _norm(self.edge1) * _norm(self.edge2):
+            raise SceneError("edge1 and edge2 are parallel: the rectangle has no area", "edge2")
+
+    def world(self) -> tuple[Vec3, Vec3, Vec3]:
+        if self.transform is None:
+            return self.corner, self.edge1, self.edge2
+        t = self.transform
+        return t.apply_point(self.corner), t.apply_vector(self.edge1), t.apply_vector(self.edge2)
+
+
+@dataclass(frozen=True)
+class Disk:
+    center: Vec3 = (0.0, 0.0, 0.0)
+    normal: Vec3 = (0.0, 1.0, 0.0)
+    radius: float = 1.0
+    material: str = DEFAULT_MATERIAL
+
+    def __post_init__(self):
+        _set(self, "center", as_vec3(self.center, "center"))
+        _set(self, "normal", as_direction(self.normal, "normal"))
+        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        _check_material(self)
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh from a file (OBJ/PLY/STL/GLB/OFF through trimesh) or inline arrays.
+
+    Assets are shared: meshes naming the same file (or the same arrays) use one ``wp.Mesh`` and
+    differ only by their instance transform. ``smooth`` interpolates vertex normals for shading.
+    """
+
+    file: str | None = None  # path, relative to the scene file
+    vertices: Any = None  # (N, 3) numbers
+    faces: Any = None  # (M, 3) vertex indices
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+    transform_end: Transform | None = None  # instance transform at time 1 (motion blur)
+    smooth: bool = False
+    degenerate: str = "error"  # "error" or "drop": what to do with zero-area faces
+
+    def __post_init__(self):
+        if (self.file is None) == (self.vertices is None):
+            raise SceneError("give either file or vertices (with faces)", "file")
+        if self.file is not None and (not isinstance(self.file, str) or not self.file):
+            raise SceneError(f"expected a path, got {self.file!r}", "file")
+        if self.vertices is not None and self.faces is None:
+            raise SceneError("inline vertices need faces", "faces")
+        _check_material(self)
+        _set(self, "transform", as_transform(self.transform, "transform"))
+        _set(self, "transform_end", as_transform(self.transform_end, "transform_end"))
+        if not isinstance(self.smooth, bool):
+            raise SceneError(f"expected true or false, got {self.smooth!r}", "smooth")
+        _set(self, "degenerate", as_choice(self.degenerate, "degenerate", ("error", "drop")))
+        if self.vertices is not None:
+            v, f = _validate_arrays(self.vertices, self.faces)
+            _set(self, "vertices", v)
+            _set(self, "faces", f)
+
+    @property
+    def moves(self) -> bool:
+        return self.transform_end is not None and self.transform_end != (self.transform or Transform())
+
+
+def _validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        v = np.asarray(vertices, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SceneError("vertices must be numbers", "vertices") from None
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise SceneError(f"vertices must have shape (N, 3), got {v.shape}", "vertices")
+    if len(v) == 0:
+        raise SceneError("the mesh has no vertices", "vertices")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise SceneError(f"{int(bad.sum())} vertices are NaN or infinite (first: vertex {int(np.argmax(bad))})",
+                         "vertices")
+    if np.abs(v).max() > 1e30:
+        raise SceneError("vertex coordinates exceed 1e30", "vertices")
+    try:
+        f_in = np.asarray(faces)
+    except (TypeError, ValueError):
+        raise SceneError("faces must be integers", "faces") from None
+    if f_in.size and not np.issubdtype(f_in.dtype, np.integer):
+        if not np.issubdtype(f_in.dtype, np.floating) or not np.all(np.mod(f_in, 1) == 0):
+            raise SceneError("faces must be integer vertex indices", "faces")
+    f = f_in.astype(np.int64).reshape(-1, 3) if f_in.size else np.zeros((0, 3), np.int64)
+    if f_in.size and (f_in.ndim != 2 or f_in.shape[1] != 3):
+        raise SceneError(f"faces must have shape (M, 3) (triangles), got {f_in.shape}", "faces")
+    if len(f) == 0:
+        raise SceneError("the mesh has no faces", "faces")
+    if f.min() < 0 or f.max() >= len(v):
+        raise SceneError(f"face indices must be in [0, {len(v) - 1}], found {int(f.min())}..{int(f.max())}", "faces")
+    return v, f
+
+
+# --- lights --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PointLight:
+    position: Vec3 = (0.0, 5.0, 5.0)
+    intensity: RGB = (1.0, 1.0, 1.0)  # I in the lecture's formula
+    falloff: str = "none"  # "none" (the lecture's) or "inverse_square" (I / r^2)
+
+    def __post_init__(self):
+        _set(self, "position", as_vec3(self.position, "position"))
+        _set(self, "intensity", as_rgb(self.intensity, "intensity"))
+        _set(self, "falloff", as_choice(self.falloff, "falloff", FALLOFFS))
+
+
+def _area_light_common(obj: Any) -> None:
+    _set(obj, "radiance", as_rgb(obj.radiance, "radiance"))
+    _set(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
+
+
+@dataclass(frozen=True)
+class RectLight:
+    """A one-sided emitting parallelogram (emits along edge1 x edge2), visible to camera rays."""
+
+    corner: Vec3 = (-0.5, 4.0, -0.5)
+    edge1: Vec3 = (1.0, 0.0, 0.0)
+    edge2: Vec3 = (0.0, 0.0, 1.0)
+    radiance: RGB = (1.0, 1.0, 1.0)  # Le, emitted radiance
+    samples: int = 1  # shadow rays per shading point and camera sample
+
+    def __post_init__(self):
+        r = Rectangle(self.corner, self.edge1, self.edge2)
+        _set(self, "corner", r.corner)
+        _set(self, "edge1", r.edge1)
+        _set(self, "edge2", r.edge2)
+        _area_light_common(self)
+
+    @property
+    def area(self) -> float:
+        return _norm(np.cross(self.edge1, self.edge2))
+
+
+@dataclass(frozen=True)
+class SphereLight:
+    """An emitting sphere, sampled by the cone of directions it subtends."""
+
+    center: Vec3 = (0.0, 4.0, 0.0)
+    radius: float = 0.5
+    radiance: RGB = (1.0, 1.0, 1.0)
+    samples: int = 1
+
+    def __post_init__(self):
+        _set(self, "center", as_vec3(self.center, "center"))
+        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        _area_light_common(self)
+
+
+@dataclass(frozen=True)
+class DiskLight:
+    """A one-sided emitting disk (emits along ``normal``)."""
+
+    center: Vec3 = (0.0, 4.0, 0.0)
+    normal: Vec3 = (0.0, -1.0, 0.0)
+    radius: float = 0.5
+    radiance: RGB = (1.0, 1.0, 1.0)
+    samples: int = 1
+
+    def __post_init__(self):
+        _set(self, "center", as_vec3(self.center, "center"))
+        _set(self, "normal", as_direction(self.normal, "normal"))
+        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        _area_light_common(self)
+
+
+# --- render settings and the scene ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    spp: int = 1  # samples per pixel
+    sampler: str = "stratified"  # "regular", "independent", "stratified" or "sobol"
+    max_depth: int = 5  # reflection/refraction bounces after the camera ray
+    min_weight: float = 1e-4  # rays whose throughput falls below this are not traced
+    t_min: float = 0.0  # camera rays: nearest accepted distance
+    t_max: float = math.inf  # camera rays: farthest accepted distance
+    clamp: float = 1e20  # each sample's radiance is clamped to this (overflow guard)
+
+    def __post_init__(self):
+        _set(self, "spp", as_int(self.spp, "spp", minimum=1, maximum=1 << 20))
+        _set(self, "sampler", as_choice(self.sampler, "sampler", SAMPLERS))
+        _set(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
+        _set(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
+        _set(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0))
+        t_max = self.t_max
+        if isinstance(t_max, (int, float)) and not isinstance(t_max, bool) and t_max == math.inf:
+            _set(self, "t_max", math.inf)
+        else:
+            _set(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True))
+        if self.t_max <= self.t_min:
+            raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
+        _set(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True))
+
+
+Shape = Sphere | Plane | Rectangle | Disk | Mesh
+Light = PointLight | RectLight | SphereLight | DiskLight
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """Everything needed to render one image. Build it in Python or load it with ``load_scene``."""
+
+    camera: Camera = field(default_factory=Camera)
+    shapes: tuple = ()
+    materials: Mapping[str, Material] = field(default_factory=dict)
+    lights: tuple = ()
+    ambient: RGB = (0.0, 0.0, 0.0)  # Ia, scene ambient intensity
+    background: RGB = (0.0, 0.0, 0.0)  # radiance of rays that hit nothing
+    render: RenderSettings = field(default_factory=RenderSettings)
+    source: str | None = None  # the scene file, for messages and relative mesh paths
+
+    def __post_init__(self):
+        try:
+            self._validate()
+        except SceneError as e:
+            raise e.within(source=self.source) from None
+
+    def _validate(self) -> None:
+        for name, cls in (("camera", Camera), ("render", RenderSettings)):
+            if not isinstance(getattr(self, name), cls):
+                raise SceneError(f"expected a {cls.__name__}, got {type(getattr(self, name)).__name__}", name)
+        _set(self, "shapes", tuple(self.shapes))
+        _set(self, "lights", tuple(self.lights))
+        mats = dict(self.materials)
+        for key, m in mats.items():
+            if not isinstance(key, str) or not key:
+                raise SceneError(f"material names must be non-empty strings, got {key!r}", "materials")
+            if not isinstance(m, Material):
+                raise SceneError(f"expected a Material, got {type(m).__name__}", f"materials.{key}")
+        mats.setdefault(DEFAULT_MATERIAL, Material())
+        _set(self, "materials", mats)
+        for i, s in enumerate(self.shapes):
+            if not isinstance(s, (Sphere, Plane, Rectangle, Disk, Mesh)):
+                raise SceneError(f"expected a shape (Sphere, Plane, Rectangle, Disk, Mesh), got {type(s).__name__}",
+                                 f"shapes[{i}]")
+            if s.material not in mats:
+                known = ", ".join(sorted(mats))
+                raise SceneError(f"unknown material {s.material!r} (known: {known})", f"shapes[{i}].material")
+        for i, light in enumerate(self.lights):
+            if not isinstance(light, (PointLight, RectLight, SphereLight, DiskLight)):
+                raise SceneError(f"expected a light, got {type(light).__name__}", f"lights[{i}]")
+        _set(self, "ambient", as_rgb(self.ambient, "ambient"))
+        _set(self, "background", as_rgb(self.background, "background"))
+
+    def replace(self, **changes: Any) -> "Scene":
+        """A copy with some fields changed (``camera``, ``render`` ...)."""
+        return replace(self, **changes)
+
+    def with_settings(self, **changes: Any) -> "Scene":
+        """A copy with render settings changed, e.g. ``scene.with_settings(spp=64)``."""
+        return replace(self, render=replace(self.render, **changes))
+
+    def with_camera(self, **changes: Any) -> "Scene":
+        return replace(self, camera=replace(self.camera, **changes))
+
+
+def field_names(cls: type) -> list[str]:
+    return [f.name for f in fields(cls)]

@@ -1,0 +1,129 @@
+"""TOML scene files: parse, check every table and field, and build the description objects.
+
+A scene file states only what differs from the defaults (see docs/scene-format.md)::
+
+    [camera]
+    eye = [0, 1, 5]
+
+    [materials.red]
+    kd = [0.8, 0.1, 0.1]
+
+    [[shapes]]
+    type = "sphere"
+    material = "red"
+
+    [[lights]]
+    type = "point"
+    position = [2, 4, 3]
+
+Errors name the file, the field (``shapes[1].radius``) and the problem.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import fields
+from typing import Any, Mapping
+
+from ..errors import SceneError
+from .description import (
+    Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
+    Scene, Sphere, SphereLight,
+)
+
+SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
+LIGHT_TYPES = {"point": PointLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
+TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights"}
+WORLD_FIELDS = {"ambient", "background"}
+
+
+def _make(cls: type, table: Any, where: str, skip: tuple[str, ...] = ()) -> Any:
+    if not isinstance(table, Mapping):
+        raise SceneError(f"expected a table, got {table!r}", where)
+    allowed = [f.name for f in fields(cls) if f.name not in skip]
+    unknown = sorted(set(table) - set(allowed) - set(skip))
+    if unknown:
+        raise SceneError(f"unknown field(s) {', '.join(unknown)}; expected some of: {', '.join(allowed)}", where)
+    kwargs = {k: v for k, v in table.items() if k not in skip}
+    try:
+        return cls(**kwargs)
+    except SceneError as e:
+        raise e.within(where) from None
+
+
+def _typed_list(items: Any, kinds: dict[str, type], where: str, base_dir: str) -> list[Any]:
+    if not isinstance(items, list):
+        raise SceneError(f"expected an array of tables ([[{where}]]), got {type(items).__name__}", where)
+    out = []
+    for i, item in enumerate(items):
+        loc = f"{where}[{i}]"
+        if not isinstance(item, Mapping):
+            raise SceneError(f"expected a table, got {item!r}", loc)
+        kind = item.get("type")
+        if kind not in kinds:
+            raise SceneError(f"type must be one of {', '.join(repr(k) for k in kinds)}, got {kind!r}", f"{loc}.type")
+        item = dict(item)
+        if kind == "mesh" and kinds is SHAPE_TYPES and isinstance(item.get("file"), str):
+            path = os.path.join(base_dir, item["file"])
+            if not os.path.isfile(path):
+                raise SceneError(f"mesh file not found: {item['file']!r} (looked in {os.path.abspath(path)!r})",
+                                 f"{loc}.file")
+            item["file"] = os.path.abspath(path)
+        out.append(_make(kinds[kind], item, loc, skip=("type",)))
+    return out
+
+
+def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: str = ".") -> Scene:
+    """Build a :class:`Scene` from parsed TOML data (a dict)."""
+    try:
+        unknown = sorted(set(data) - TOP_LEVEL)
+        if unknown:
+            raise SceneError(f"unknown table(s) {', '.join(unknown)}; expected some of: {', '.join(sorted(TOP_LEVEL))}",
+                             unknown[0])
+        camera = _make(Camera, data.get("camera", {}), "camera")
+        render = _make(RenderSettings, data.get("render", {}), "render")
+        world = data.get("world", {})
+        if not isinstance(world, Mapping):
+            raise SceneError("expected a table", "world")
+        bad = sorted(set(world) - WORLD_FIELDS)
+        if bad:
+            raise SceneError(f"unknown field(s) {', '.join(bad)}; expected some of: ambient, background", "world")
+        mats_in = data.get("materials", {})
+        if not isinstance(mats_in, Mapping):
+            raise SceneError("expected tables [materials.NAME]", "materials")
+        materials = {name: _make(Material, m, f"materials.{name}") for name, m in mats_in.items()}
+        shapes = _typed_list(data.get("shapes", []), SHAPE_TYPES, "shapes", base_dir)
+        lights = _typed_list(data.get("lights", []), LIGHT_TYPES, "lights", base_dir)
+        kwargs = {k: world[k] for k in WORLD_FIELDS if k in world}
+        try:
+            return Scene(camera=camera, shapes=tuple(shapes), materials=materials, lights=tuple(lights),
+                         render=render, source=source, **kwargs)
+        except SceneError as e:
+            raise (e if e.field and e.field.split(".")[0].split("[")[0] in TOP_LEVEL else e.within("world")) from None
+    except SceneError as e:
+        raise e.within(source=source) from None
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read a TOML scene file. Relative mesh paths are resolved against the file's folder."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise SceneError("scene file not found", source=path) from None
+    except IsADirectoryError:
+        raise SceneError("is a directory, not a scene file", source=path) from None
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"not valid TOML: {e}", source=path) from None
+    return parse_scene(data, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def scene_from_string(text: str, base_dir: str = ".", source: str = "<string>") -> Scene:
+    """Parse a scene from TOML text (handy in tests and notebooks)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"not valid TOML: {e}", source=source) from None
+    return parse_scene(data, source=source, base_dir=base_dir)
