@@ -21,6 +21,7 @@ from . import _warp
 from .build import KIND_NONE, CameraData, DeviceScene, Features, SceneData
 from .errors import RenderError
 from .integrator import camera_ray, kernels_for
+from .sampling import SAMPLER_IDS, sample_2d
 from .scene.description import Scene
 
 _lock = threading.Lock()
@@ -59,7 +60,13 @@ def _query_kernels():
                 out_n[i] = h.ng
                 out_ns[i] = h.ns
 
-        _kernels["camera"], _kernels["trace"] = camera_kernel, trace_kernel
+        @wp.kernel(module="warprt_query", enable_backward=False)
+        def samples_kernel(sampler: int, seed: wp.uint32, pixels: wp.array(dtype=int), spp: int,
+                           dim: wp.uint32, out: wp.array2d(dtype=wp.vec2)):
+            i, s = wp.tid()
+            out[i, s] = sample_2d(sampler, seed, pixels[i], s, spp, dim)
+
+        _kernels["camera"], _kernels["trace"], _kernels["samples"] = camera_kernel, trace_kernel, samples_kernel
         return camera_kernel, trace_kernel
 
 
@@ -134,3 +141,23 @@ def trace_rays(scene, origins, directions, t_min: float = 0.0, t_max: float = np
                      dtype=np.int64)
     return {"hit": hit, "t": np.where(hit, t, np.inf).astype(np.float32), "position": p, "normal": ng,
             "shading_normal": ns, "shape": shape}
+
+
+def pixel_samples(sampler: str, pixels, spp: int, dim: int = 0, seed: int = 0, count: int | None = None,
+                  device: str | None = None) -> np.ndarray:
+    """The 2D samples a sampler gives: array (len(pixels), count, 2) in [0, 1)^2.
+
+    ``dim`` is the dimension key (0 film, 1 lens, 2 time; other keys are light and lobe samples),
+    ``spp`` the planned samples per pixel, ``count`` how many to draw (default ``spp``).
+    """
+    if sampler not in SAMPLER_IDS:
+        raise RenderError(f"unknown sampler {sampler!r}; expected one of {', '.join(SAMPLER_IDS)}")
+    dev = _warp.resolve_device(device)
+    pix = np.atleast_1d(np.asarray(pixels, dtype=np.int32))
+    count = spp if count is None else count
+    _query_kernels()
+    out = wp.zeros((len(pix), count), dtype=wp.vec2, device=dev)
+    wp.launch(_kernels["samples"], dim=(len(pix), count), device=dev,
+              inputs=[SAMPLER_IDS[sampler], wp.uint32(seed & 0xFFFFFFFF), wp.array(pix, dtype=int, device=dev),
+                      int(spp), wp.uint32(dim & 0xFFFFFFFF), out])
+    return out.numpy()

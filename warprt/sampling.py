@@ -33,6 +33,15 @@ SAMPLER_IDS = {"regular": 0, "independent": 1, "stratified": 2, "sobol": 3}
 
 INV_2_24 = 1.0 / 16777216.0
 
+# 32-bit constants at or above 2^31, typed (a bare literal would be emitted as int32)
+_C80000000 = wp.constant(wp.uint32(0x80000000))
+_C846CA68B = wp.constant(wp.uint32(0x846CA68B))
+_C8D22F6E6 = wp.constant(wp.uint32(0x8D22F6E6))
+_C9E3779B9 = wp.constant(wp.uint32(0x9E3779B9))
+_CA511E9B3 = wp.constant(wp.uint32(0xA511E9B3))
+_CB82F1E52 = wp.constant(wp.uint32(0xB82F1E52))
+_CC7AFE638 = wp.constant(wp.uint32(0xC7AFE638))
+
 
 # --- hashing --------------------------------------------------------------------------------
 
@@ -43,7 +52,7 @@ def hash_u32(x: wp.uint32) -> wp.uint32:
     x = x ^ (x >> wp.uint32(16))
     x = x * wp.uint32(0x7FEB352D)
     x = x ^ (x >> wp.uint32(15))
-    x = x * wp.uint32(0x846CA68B)
+    x = x * _C846CA68B
     x = x ^ (x >> wp.uint32(16))
     return x
 
@@ -51,7 +60,7 @@ def hash_u32(x: wp.uint32) -> wp.uint32:
 @wp.func
 def hash2(a: wp.uint32, b: wp.uint32) -> wp.uint32:
     """Hash of an ordered pair (a is typically a running hash, b a new key)."""
-    return hash_u32(a ^ (hash_u32(b) + wp.uint32(0x9E3779B9) + (a << wp.uint32(6)) + (a >> wp.uint32(2))))
+    return hash_u32(a ^ (hash_u32(b) + _C9E3779B9 + (a << wp.uint32(6)) + (a >> wp.uint32(2))))
 
 
 @wp.func
@@ -62,7 +71,7 @@ def u32_to_unit(x: wp.uint32) -> float:
 
 @wp.func
 def pixel_key(seed: wp.uint32, pixel: int) -> wp.uint32:
-    return hash2(hash_u32(seed ^ wp.uint32(0xA511E9B3)), wp.uint32(pixel))
+    return hash2(hash_u32(seed ^ _CA511E9B3), wp.uint32(pixel))
 
 
 # --- bit tricks -------------------------------------------------------------------------------
@@ -84,9 +93,9 @@ def owen_scramble(x: wp.uint32, seed: wp.uint32) -> wp.uint32:
     x = reverse_bits(x)
     x = x + seed
     x = x ^ (x * wp.uint32(0x6C50B47C))
-    x = x ^ (x * wp.uint32(0xB82F1E52))
-    x = x ^ (x * wp.uint32(0xC7AFE638))
-    x = x ^ (x * wp.uint32(0x8D22F6E6))
+    x = x ^ (x * _CB82F1E52)
+    x = x ^ (x * _CC7AFE638)
+    x = x ^ (x * _C8D22F6E6)
     return reverse_bits(x)
 
 
@@ -94,7 +103,7 @@ def owen_scramble(x: wp.uint32, seed: wp.uint32) -> wp.uint32:
 def sobol_dim1(index: wp.uint32) -> wp.uint32:
     """Second dimension of the Sobol sequence (the first is the bit-reversed index)."""
     r = wp.uint32(0)
-    v = wp.uint32(0x80000000)
+    v = _C80000000
     i = index
     while i != wp.uint32(0):
         if (i & wp.uint32(1)) != wp.uint32(0):

@@ -1,0 +1,29 @@
+# Two commands on a fresh machine: `make render` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
+
+.PHONY: render test bench install clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test,charts]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+render: $(STAMP)
+	mkdir -p out
+	$(PY) -m warprt render scenes/showcase.toml -o out/showcase.png -o out/showcase.exr
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) -m benchmarks.run
+
+clean:
+	rm -rf out .cache .pytest_cache

@@ -1,0 +1,42 @@
+"""Shared fixtures. Warp's kernel cache goes under the repository (``.cache/warp``) unless
+WARP_CACHE_PATH says otherwise, so a fresh clone compiles into a folder it owns."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+os.environ.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
+
+import pytest  # noqa: E402
+import warp as wp  # noqa: E402
+
+import warprt  # noqa: E402,F401  (initialises Warp quietly)
+
+SCENES = ROOT / "scenes"
+
+
+def _devices() -> list[str]:
+    devices = ["cpu"]
+    if wp.is_cuda_available():
+        devices.append("cuda:0")
+    return devices
+
+
+@pytest.fixture(params=_devices())
+def device(request) -> str:
+    """Every Warp device here: the CPU always, CUDA when present."""
+    return request.param
+
+
+@pytest.fixture
+def cuda_device() -> str:
+    if not wp.is_cuda_available():
+        pytest.skip("needs a CUDA device")
+    return "cuda:0"
+
+
+@pytest.fixture
+def scenes_dir() -> pathlib.Path:
+    return SCENES

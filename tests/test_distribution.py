@@ -1,0 +1,395 @@
+"""Distribution ray tracing checked against closed forms.
+
+Every render here uses the all-features kernel (``Features.full()``), so the module compiles one
+kernel variant however many scenes it renders; specialised variants are compared with it in
+tests/test_features.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import warprt
+from warprt import Features
+from warprt.query import camera_rays
+
+FULL = Features.full()
+
+
+def render(scene, spp, seed=0, **kw):
+    return warprt.Renderer(scene, device="cpu", features=FULL).render(spp=spp, seed=seed, progress=False, **kw)
+
+
+def polygon_irradiance(p: np.ndarray, n: np.ndarray, verts: list[np.ndarray], radiance: float) -> float:
+    """Irradiance at p (normal n) from a uniform polygonal emitter fully above p's horizon:
+    Lambert's formula E = Le/2 Σ θ_i n·(a_i × a_{i+1})/|a_i × a_{i+1}| (the form factor of a polygon)."""
+    total = 0.0
+    for i in range(len(verts)):
+        a = verts[i] - p
+        b = verts[(i + 1) % len(verts)] - p
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        c = np.cross(a, b)
+        total += math.acos(float(np.clip(np.dot(a, b), -1.0, 1.0))) * float(np.dot(n, c / np.linalg.norm(c)))
+    return abs(total) * radiance / 2.0
+
+
+def footprint_points(i: int, j: int, k: int = 6) -> np.ndarray:
+    g = (np.arange(k) + 0.5) / k
+    return np.array([[i + a, j + b] for a in g for b in g])
+
+
+# --- area lights ------------------------------------------------------------------------------
+
+
+def test_rectangle_light_irradiance_matches_polygon_formula_and_is_unbiased():
+    corner, e1, e2 = np.array([-0.5, 2.0, -0.3]), np.array([1.2, 0.0, 0.0]), np.array([0.0, 0.0, 0.8])
+    le, kd = 3.0, 0.7
+    w = h = 10
+    scene = warprt.Scene(
+        camera=warprt.Camera(eye=(0.3, 1.5, 2.5), look_at=(0.3, 0.0, 0.0), fov=50, width=w, height=h),
+        shapes=(warprt.Plane(material="white"),), materials={"white": warprt.Material(kd=kd, ka=0.0)},
+        lights=(warprt.RectLight(corner=tuple(corner), edge1=tuple(e1), edge2=tuple(e2), radiance=le),),
+        render=warprt.RenderSettings(sampler="independent"))
+    verts = [corner, corner + e1, corner + e1 + e2, corner + e2]
+    expected = np.zeros((h, w))
+    for j in range(h):
+        for i in range(w):
+            o, d = camera_rays(scene, footprint_points(i, j))
+            hit = o + (-o[:, 1] / d[:, 1])[:, None] * d
+            expected[j, i] = np.mean([kd / math.pi * polygon_irradiance(q, np.array([0.0, 1.0, 0.0]), verts, le)
+                                      for q in hit])
+    runs = np.stack([render(scene, 256, seed=s).image[..., 0] for s in range(6)])
+    mean = runs.mean(axis=0)
+    se = runs.std(axis=0, ddof=1) / math.sqrt(len(runs))
+    z = (mean - expected) / np.maximum(se, 1e-12)
+    # unbiased: the image-wide mean within 3 standard errors, no pixel beyond 5
+    total_se = math.sqrt(float((se ** 2).sum())) / se.size
+    assert abs(float((mean - expected).mean())) < 3.0 * total_se
+    assert np.abs(z).max() < 5.0
+    # and accurate at this sample count: 6 x 256 samples per pixel
+    assert np.abs(mean / expected - 1.0).mean() < 0.01
+
+
+def test_shrinking_sphere_light_converges_to_inverse_square_point_light():
+    intensity = 2.0
+    base = dict(camera=warprt.Camera(eye=(0, 1.0, 3.0), look_at=(0, 0, 0), width=12, height=10),
+                shapes=(warprt.Plane(material="m"), warprt.Sphere(center=(0.4, 0.3, 0.2), radius=0.3, material="m")),
+                materials={"m": warprt.Material(kd=0.6, ks=0.3, p=20, ka=0.0)})
+    point = render(warprt.Scene(lights=(warprt.PointLight(position=(0.5, 2.0, 1.0), intensity=intensity,
+                                                          falloff="inverse_square"),), **base), 4).image
+    errors = []
+    for radius in (0.1, 0.01, 0.001):
+        light = warprt.SphereLight(center=(0.5, 2.0, 1.0), radius=radius, radiance=intensity / radius ** 2)
+        img = render(warprt.Scene(lights=(light,), **base), 4).image
+        mask = point > 1e-3
+        errors.append(float(np.abs(img[mask] / point[mask] - 1.0).max()))
+    assert errors[0] > errors[1] > errors[2] or errors[2] < 1e-4
+    assert errors[2] < 2e-3, errors
+
+
+def test_area_light_is_visible_to_camera_rays_with_its_radiance():
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 0, 3), look_at=(0, 0, 0), width=8, height=8, fov=20),
+                         lights=(warprt.RectLight(corner=(-1, -1, 0), edge1=(2, 0, 0), edge2=(0, 2, 0),
+                                                  radiance=(0.5, 1.5, 2.5)),))
+    img = render(scene, 1).image
+    np.testing.assert_array_equal(img, np.broadcast_to(np.float32([0.5, 1.5, 2.5]), img.shape))
+    # seen from behind, a one-sided emitter is black
+    back = render(scene.with_camera(eye=(0, 0, -3)), 1).image
+    assert back.max() == 0.0
+
+
+# --- antialiasing: a half-plane edge across pixels ---------------------------------------------
+
+
+def _edge_scene(w: int, sampler: str) -> tuple[warprt.Scene, np.ndarray]:
+    """A white emitter filling the half plane below a slanted line, seen head-on; the exact pixel
+    value is the area fraction of the pixel under the line (computed in raster coordinates)."""
+    slope, offset = 0.37, 0.5
+    fov = 40.0
+    half = math.tan(math.radians(fov) / 2)  # image-plane half size at D = 1, camera at z = 1
+    # raster (x, y) -> world (X, Y) on the plane z = 0: X = (2x/w - 1) half, Y = (1 - 2y/w) half
+    # the edge Y = slope X + c in world is a line in raster space; build the emitter polygon
+    c = offset * half * 0.2
+    big = 10.0
+    corner = (-big, -big, 0.0)
+    # emitter: parallelogram below the line Y = slope X + c, spanning X in [-big, big]
+    e1 = (2 * big, 2 * big * slope, 0.0)
+    e2 = (0.0, (slope * -big + c) + big, 0.0)
+    light = warprt.RectLight(corner=corner, edge1=e1, edge2=e2, radiance=1.0)
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 0, 1), look_at=(0, 0, 0), fov=fov, width=w, height=w),
+                         lights=(light,), render=warprt.RenderSettings(sampler=sampler))
+    # exact coverage: integrate the indicator over each pixel analytically in x (fine grid in y)
+    k = 400
+    ys = (np.arange(k) + 0.5) / k
+    exact = np.zeros((w, w))
+    for j in range(w):
+        Y = (1 - 2 * (j + ys) / w) * half  # world Y of sub-rows
+        X_edge = (Y - c) / slope  # points with X > X_edge are under the line (slope > 0)
+        x_edge = (X_edge / half + 1) * w / 2  # raster x of the edge on each sub-row
+        for i in range(w):
+            exact[j, i] = np.clip(i + 1 - x_edge, 0.0, 1.0).mean()
+    return scene, exact
+
+
+def test_half_plane_edge_coverage_equals_area_fraction():
+    scene, exact = _edge_scene(16, "stratified")
+    img = render(scene, 256).image[..., 0]
+    edge = (exact > 0) & (exact < 1)
+    assert edge.sum() >= 16
+    np.testing.assert_array_equal(img[exact == 0], 0.0)
+    np.testing.assert_array_equal(img[exact == 1], 1.0)
+    assert np.abs(img[edge] - exact[edge]).max() < 0.03
+    assert abs(float((img[edge] - exact[edge]).mean())) < 0.005
+
+
+def _fit_slope(spps, errors) -> float:
+    return float(np.polyfit(np.log(spps), np.log(errors), 1)[0])
+
+
+def _edge_errors(sampler: str, spps, seeds=4) -> list[float]:
+    scene, exact = _edge_scene(12, sampler)
+    edge = (exact > 0) & (exact < 1)
+    out = []
+    for spp in spps:
+        sq = [float(np.mean((render(scene, spp, seed=s).image[..., 0][edge] - exact[edge]) ** 2)) for s in range(seeds)]
+        out.append(math.sqrt(np.mean(sq)))
+    return out
+
+
+def test_convergence_rates_on_an_edge():
+    spps = [4, 16, 64, 256]
+    independent = _fit_slope(spps, _edge_errors("independent", spps))
+    stratified = _fit_slope(spps, _edge_errors("stratified", spps))
+    sobol = _fit_slope(spps, _edge_errors("sobol", spps))
+    assert -0.65 < independent < -0.35, independent
+    assert stratified < -0.65, stratified
+    assert sobol < -0.65, sobol
+    assert stratified < independent - 0.15 and sobol < independent - 0.15
+
+
+def _soft_shadow_scene(sampler: str, w: int = 10) -> warprt.Scene:
+    """A square occluder between a square light and the floor, viewed close up on the corner of
+    its penumbra (each pixel spans about 5% of the penumbra width)."""
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0, 2.0, 2.0), look_at=(0.6, 0, 0.6), fov=9, width=w, height=w),
+        shapes=(warprt.Plane(material="m"), warprt.Rectangle(corner=(-0.4, 0.8, -0.4), edge1=(0, 0, 0.8),
+                                                           edge2=(0.8, 0, 0), material="m")),
+        materials={"m": warprt.Material(kd=0.8, ka=0.0)},
+        lights=(warprt.RectLight(corner=(-0.6, 2.0, -0.6), edge1=(1.2, 0, 0), edge2=(0, 0, 1.2), radiance=2.0),),
+        render=warprt.RenderSettings(sampler=sampler))
+
+
+def test_convergence_rates_on_soft_shadows():
+    """Stratifying the light samples pays where the light dimensions carry the variance. (The
+    film x light cross term is not stratified by padding and converges at the Monte Carlo rate;
+    with pixels as wide as the penumbra the slopes flatten towards -0.6, see docs/sampling.md.)"""
+    reference = render(_soft_shadow_scene("sobol"), 16384).image
+    spps = [4, 16, 64, 256]
+    slopes = {}
+    for sampler in ("independent", "stratified", "sobol"):
+        scene = _soft_shadow_scene(sampler)
+        errs = []
+        for spp in spps:
+            mse = [float(np.mean((render(scene, spp, seed=s).image - reference) ** 2)) for s in range(6)]
+            errs.append(math.sqrt(np.mean(mse)))
+        slopes[sampler] = _fit_slope(spps, errs)
+    assert -0.6 < slopes["independent"] < -0.4, slopes
+    assert slopes["stratified"] < -0.65, slopes
+    assert slopes["sobol"] < -0.65, slopes
+
+
+# --- regular sampling aliases ------------------------------------------------------------------
+
+
+def test_regular_sampling_shows_moire_where_stratified_does_not():
+    """Thin stripes receding in perspective: regular samples alias into low-frequency moiré,
+    stratified samples turn the same error into noise. Moiré is error that survives a low-pass
+    filter (4x4 block means), so compare block-averaged errors against a converged reference."""
+    stripes = tuple(warprt.Rectangle(corner=(-20, 0, -0.5 - k * 0.5), edge1=(0, 0, 0.12), edge2=(40, 0, 0),
+                                     material="white") for k in range(60))
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 1.0, 1.0), look_at=(0, 0, -4), fov=50, width=32, height=32),
+                         shapes=stripes, materials={"white": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0)
+    reference = render(scene.with_settings(sampler="sobol"), 1024).image[..., 0]
+
+    def block_error(img):
+        d = (img[..., 0] - reference).reshape(8, 4, 8, 4).mean(axis=(1, 3))
+        return float(np.sqrt(np.mean(d ** 2)))
+
+    regular = block_error(render(scene.with_settings(sampler="regular"), 4).image)
+    stratified = np.mean([block_error(render(scene.with_settings(sampler="stratified"), 4, seed=s).image)
+                          for s in range(3)])
+    assert regular > 2.0 * stratified, (regular, stratified)
+
+
+# --- depth of field -----------------------------------------------------------------------------
+
+
+def test_depth_of_field_circle_of_confusion():
+    """A tiny emitter off the focal plane spreads into a uniform disk of radius
+    R = A D |z - f| / (z f) on the image plane, i.e. A H |z - f| / (2 z f tan(fov/2)) pixels."""
+    aperture, focus, z, fov, size = 0.2, 2.0, 4.0, 20.0, 48
+    radius = 0.02
+    light = warprt.SphereLight(center=(0.0, 0.0, -z), radius=radius, radiance=100.0)
+    cam = warprt.Camera(eye=(0, 0, 0), look_at=(0, 0, -1), fov=fov, width=size, height=size, aperture=aperture,
+                        focus_distance=focus)
+    scene = warprt.Scene(camera=cam, lights=(light,), render=warprt.RenderSettings(sampler="sobol"))
+    img = render(scene, 1024).image[..., 0]
+    expected_r = aperture * size * abs(z - focus) / (2 * z * focus * math.tan(math.radians(fov) / 2))
+    ys, xs = np.mgrid[0:size, 0:size] + 0.5
+    wsum = img.sum()
+    cx, cy = (img * xs).sum() / wsum, (img * ys).sum() / wsum
+    r2 = (img * ((xs - cx) ** 2 + (ys - cy) ** 2)).sum() / wsum
+    # E[r^2] of the image = R^2/2 (uniform blur disk) + s^2/2 (the emitter's own disk, radius s
+    # pixels when in focus) + 1/6 (the box filter of a pixel, 1/12 per axis)
+    pixel = 2 * math.tan(math.radians(fov) / 2) / size
+    s_px = radius / z / pixel
+    measured_r = math.sqrt(2.0 * (r2 - s_px ** 2 / 2 - 1.0 / 6.0))
+    assert abs(cx - size / 2) < 0.05 and abs(cy - size / 2) < 0.05
+    assert abs(measured_r / expected_r - 1.0) < 0.03, (measured_r, expected_r)
+    # the energy does not depend on focus: the same emitter in focus gives the same total
+    focused = render(scene.with_camera(focus_distance=z), 256).image[..., 0]
+    assert abs(focused.sum() / wsum - 1.0) < 0.01
+    assert (img > 0).sum() > 10 * (focused > 0).sum()
+
+
+# --- motion blur ---------------------------------------------------------------------------------
+
+
+def test_motion_blur_time_averaged_coverage():
+    """A sphere moving along x seen by a near-orthographic camera: the pixel value is the time
+    fraction of the shutter during which the sphere covers the pixel, averaged over the pixel."""
+    r, x0, x1, w, h = 0.5, -1.0, 1.0, 48, 8
+    dist = 1000.0
+    half_w = 2.0
+    fov = 2 * math.degrees(math.atan(half_w * h / w / dist))
+    scene = warprt.Scene(
+        camera=warprt.Camera(eye=(0, 0, dist), look_at=(0, 0, 0), fov=fov, width=w, height=h),
+        shapes=(warprt.Sphere(center=(x0, 0, 0), center_end=(x1, 0, 0), radius=r, material="flat"),),
+        materials={"flat": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0,
+        render=warprt.RenderSettings(sampler="sobol"))
+    img = render(scene, 1024).image[..., 0]
+    # closed form at a ray through (X, Y): covered while |c(t) - X| < sqrt(r^2 - Y^2), c(t) = x0 + t (x1 - x0)
+    k = 24
+    expected = np.zeros((h, w))
+    for j in range(h):
+        for i in range(w):
+            g = (np.arange(k) + 0.5) / k
+            X = (2 * (i + g[:, None]) / w - 1) * half_w
+            Y = (1 - 2 * (j + g[None, :]) / h) * half_w * h / w
+            half_chord = np.sqrt(np.maximum(r * r - Y * Y, 0.0))
+            lo, hi = np.maximum(X - half_chord, x0), np.minimum(X + half_chord, x1)
+            expected[j, i] = (np.maximum(hi - lo, 0.0) / (x1 - x0)).mean()
+    assert np.abs(img - expected).max() < 0.02
+    assert abs(float((img - expected).mean())) < 2e-3
+    # the shutter limits the blur: a closed shutter [0, 0] shows the sphere at its start
+    still = render(scene.with_camera(shutter=(0.0, 0.0)), 16).image[..., 0]
+    assert still[h // 2, w // 4] > 0.9 and still[h // 2, w - 1] == 0.0  # x = -1 covered, x = 2 not
+
+
+def test_moving_mesh_instance_blurs_like_the_moving_sphere_center():
+    """A mesh moves through its instance transform (no BVH rebuild): a flat square translated
+    across the shutter covers each pixel for the closed-form fraction of time."""
+    w, h = 32, 4
+    square = warprt.Mesh(vertices=[[-0.25, -1, 0], [0.25, -1, 0], [0.25, 1, 0], [-0.25, 1, 0]],
+                         faces=[[0, 1, 2], [0, 2, 3]], material="flat",
+                         transform=warprt.Transform(translate=(-1, 0, 0)), transform_end=warprt.Transform(translate=(1, 0, 0)))
+    dist, half_w = 1000.0, 2.0
+    fov = 2 * math.degrees(math.atan(half_w * h / w / dist))
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 0, dist), look_at=(0, 0, 0), fov=fov, width=w, height=h),
+                         shapes=(square,), materials={"flat": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0,
+                         render=warprt.RenderSettings(sampler="sobol"))
+    img = render(scene, 512).image[..., 0]
+    g = (np.arange(64) + 0.5) / 64
+    expected = np.array([(np.clip(np.minimum((2 * (i + g) / w - 1) * half_w + 0.25, 1.0)
+                                  - np.maximum((2 * (i + g) / w - 1) * half_w - 0.25, -1.0), 0, None) / 2.0).mean()
+                         for i in range(w)])
+    assert np.abs(img[h // 2] - expected).max() < 0.02
+
+
+# --- glossy reflection and frosted refraction ------------------------------------------------------
+
+
+def test_glossy_lobe_sees_a_disk_light_with_the_closed_form_fraction():
+    """At normal incidence, a Phong lobe of exponent n puts 1 - cos^(n+1)(α) of its directions
+    inside a cone of half angle α; a disk light of angular radius α around the mirror direction
+    therefore shows as km·Le·(1 - cos^(n+1) α)."""
+    n_exp, km, le = 50.0, 0.8, 1.0
+    alpha = math.radians(12.0)
+    mirror_dist = 2.0
+    disk_r = mirror_dist * math.tan(alpha)
+    scene = warprt.Scene(
+        camera=warprt.Camera(eye=(0, 0, 0), look_at=(0, 0, -1), fov=0.5, width=2, height=2),
+        shapes=(warprt.Rectangle(corner=(-5, -5, -mirror_dist), edge1=(10, 0, 0), edge2=(0, 10, 0), material="gloss"),),
+        materials={"gloss": warprt.Material(kd=0.0, ka=0.0, mirror=km, glossy_exponent=n_exp)},
+        lights=(warprt.DiskLight(center=(0, 0, 0), normal=(0, 0, -1), radius=disk_r, radiance=le),),
+        render=warprt.RenderSettings(sampler="sobol", t_min=1e-4))
+    img = render(scene, 4096).image[..., 0]
+    expected = km * le * (1.0 - math.cos(alpha) ** (n_exp + 1.0))
+    assert abs(float(img.mean()) / expected - 1.0) < 0.01, (img.mean(), expected)
+
+
+def test_glossy_and_frosted_conserve_a_uniform_background():
+    """Every glossy or frosted sample ends in the background: at normal incidence no lobe
+    direction is lost, so the pixel is exactly km·bg (mirror) or kt·bg (frosted plate)."""
+    bg = (0.3, 0.6, 0.9)
+    cam = warprt.Camera(eye=(0, 0, 0), look_at=(0, 0, -1), fov=1.0, width=2, height=2)
+    glossy = warprt.Scene(camera=cam, background=bg,
+                          shapes=(warprt.Rectangle(corner=(-5, -5, -2), edge1=(10, 0, 0), edge2=(0, 10, 0), material="g"),),
+                          materials={"g": warprt.Material(kd=0.0, ka=0.0, mirror=0.7, glossy_exponent=200)})
+    np.testing.assert_allclose(render(glossy, 64).image, np.broadcast_to(0.7 * np.float32(bg), (2, 2, 3)), rtol=1e-5)
+    plate = (warprt.Rectangle(corner=(-5, -5, -2.0), edge1=(10, 0, 0), edge2=(0, 10, 0), material="frost"),
+             warprt.Rectangle(corner=(-5, -5, -2.1), edge1=(0, 10, 0), edge2=(10, 0, 0), material="frost"))  # faces -z
+    frosted = warprt.Scene(camera=cam, background=bg, shapes=plate,
+                           materials={"frost": warprt.Material(kd=0.0, ka=0.0, transparency=1.0, ior=1.5,
+                                                               frosted_exponent=2000)})
+    img = render(frosted, 64).image
+    np.testing.assert_allclose(img, np.broadcast_to(np.float32(bg), (2, 2, 3)), rtol=1e-5)
+
+
+# --- determinism and progressive rendering ---------------------------------------------------------
+
+
+def _busy_scene() -> warprt.Scene:
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0, 1, 4), look_at=(0, 0.4, 0), width=20, height=14, aperture=0.05),
+        shapes=(warprt.Plane(material="floor"),
+                warprt.Sphere(center=(-0.6, 0.4, 0), center_end=(-0.4, 0.4, 0), radius=0.4, material="glass"),
+                warprt.Sphere(center=(0.6, 0.4, 0), radius=0.4, material="gloss")),
+        materials={"floor": warprt.Material(kd=0.7),
+                   "glass": warprt.Material(kd=0.0, transparency=1.0, fresnel="exact", frosted_exponent=300),
+                   "gloss": warprt.Material(kd=0.2, mirror=0.6, glossy_exponent=100)},
+        lights=(warprt.RectLight(corner=(-0.5, 2, -0.5), edge1=(1, 0, 0), edge2=(0, 0, 1), radiance=3, samples=2),
+                warprt.PointLight(position=(2, 3, 2), intensity=0.4)),
+        ambient=0.05, background=(0.3, 0.4, 0.6))
+
+
+@pytest.mark.parametrize("sampler", ["independent", "stratified", "sobol"])
+def test_bit_identical_for_any_workers_tiles_and_passes(sampler):
+    scene = _busy_scene().with_settings(sampler=sampler)
+    a = render(scene, 8, seed=3, workers=1, tile_size=64).image
+    b = render(scene, 8, seed=3, workers=2, tile_size=5).image
+    c = render(scene, 8, seed=3, workers=2, tile_size=7, pass_spp=3).image
+    assert a.tobytes() == b.tobytes() == c.tobytes()
+    d = render(scene, 8, seed=4).image
+    assert np.abs(a - d).mean() > 1e-4
+    assert abs(float(a.mean() - d.mean())) < 0.05 * float(a.mean())
+
+
+def test_time_budget_stops_early_and_reports_the_spp_reached():
+    scene = _busy_scene()
+    result = render(scene, 100000, time_budget=0.5)
+    assert 1 <= result.spp < 100000
+    assert np.isfinite(result.image).all()
+    # the partial image is an unbiased estimate: its mean agrees with a finished render's
+    full = render(scene, 64)
+    assert abs(float(result.image.mean() / full.image.mean()) - 1.0) < 0.05
+
+
+def test_target_error_stops_when_the_estimate_is_reached():
+    scene = _busy_scene()
+    result = render(scene, 4096, target_error=0.02, pass_spp=4)
+    assert result.spp < 4096
+    assert result.relative_error is not None and result.relative_error <= 0.02
