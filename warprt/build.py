@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import threading
@@ -36,6 +37,7 @@ _warp.init()
 KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
 LIGHT_RECT, LIGHT_SPHERE, LIGHT_DISK = 0, 1, 2
 FRESNEL_IDS = {"none": 0, "schlick": 1, "exact": 2}
+SPHERE_BVH_MIN = 16  # from this many spheres on, rays find them through a BVH instead of a loop
 
 
 @dataclass(frozen=True)
@@ -70,6 +72,7 @@ class SceneData:
     sph_c1: wp.array(dtype=wp.vec3)
     sph_r: wp.array(dtype=float)
     sph_mat: wp.array(dtype=int)
+    sph_bvh: wp.uint64  # BVH over the spheres' (swept) bounds, 0 when they are few
 
     n_planes: int
     pln_p: wp.array(dtype=wp.vec3)
@@ -283,7 +286,7 @@ class DeviceScene:
                     shape_ids.append((KIND_DISK, len(dsk)))
                     dsk.append((s.center, _unit(s.normal), s.radius, mi))
                 elif isinstance(s, Mesh):
-                    key = ("file", s.file) if s.file is not None else ("arrays", id(s.vertices), id(s.faces))
+                    key = _asset_key(s)
                     if key not in asset_ids:
                         v, f = _read_mesh_file(s.file) if s.file is not None else (s.vertices, s.faces)
                         v32, f32 = prepare_mesh(v, f, s.degenerate)
@@ -339,6 +342,18 @@ class DeviceScene:
         d.sph_c1 = arr([s[1] for s in sph], wp.vec3, z3)
         d.sph_r = arr([s[2] for s in sph], float, 0.0)
         d.sph_mat = wp.array([s[3] for s in sph] or [0], dtype=int, device=dev)
+        self.sphere_bvh = None
+        d.sph_bvh = wp.uint64(0)
+        if len(sph) >= SPHERE_BVH_MIN:
+            c0 = np.array([s[0] for s in sph], dtype=np.float64)
+            c1 = np.array([s[1] for s in sph], dtype=np.float64)
+            r = np.array([s[2] for s in sph], dtype=np.float64)[:, None]
+            pad = r * 1e-6 + np.maximum(np.abs(c0), np.abs(c1)).max(axis=1, keepdims=True) * 1e-6
+            lowers = (np.minimum(c0, c1) - r - pad).astype(np.float32)
+            uppers = (np.maximum(c0, c1) + r + pad).astype(np.float32)
+            self.sphere_bvh = wp.Bvh(wp.array(lowers, dtype=wp.vec3, device=dev),
+                                     wp.array(uppers, dtype=wp.vec3, device=dev))
+            d.sph_bvh = wp.uint64(self.sphere_bvh.id)
         d.n_planes = len(pln)
         d.pln_p = arr([p[0] for p in pln], wp.vec3, z3)
         d.pln_n = arr([p[1] for p in pln], wp.vec3, z3)
@@ -395,6 +410,17 @@ class DeviceScene:
         d.background = wp.vec3(*scene.background)
         self.data = d
         self.camera = camera_data(scene)
+
+
+def _asset_key(m: Mesh) -> tuple:
+    """Meshes with the same file, or the same inline arrays (by content), share one asset."""
+    if m.file is not None:
+        return ("file", m.file, m.degenerate)
+    h = hashlib.blake2b(digest_size=16)
+    for a in (m.vertices, m.faces):
+        h.update(str(a.shape).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return ("arrays", h.hexdigest(), m.degenerate)
 
 
 def _unit(v) -> tuple[float, float, float]:

@@ -154,12 +154,22 @@ def _make_kernels(F: Features):
         face = int(-1)
         bu = float(0.0)
         bv = float(0.0)
-        for i in range(scene.n_spheres):
-            t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.sph_r[i], t_min, best)
-            if t >= 0.0:
-                best = t
-                kind = KIND_SPHERE
-                index = i
+        if scene.sph_bvh != wp.uint64(0):
+            query = wp.bvh_query_ray(scene.sph_bvh, o, d)
+            i = int(0)
+            while wp.bvh_query_next(query, i, best):
+                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.sph_r[i], t_min, best)
+                if t >= 0.0:
+                    best = t
+                    kind = KIND_SPHERE
+                    index = i
+        else:
+            for i in range(scene.n_spheres):
+                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.sph_r[i], t_min, best)
+                if t >= 0.0:
+                    best = t
+                    kind = KIND_SPHERE
+                    index = i
         for i in range(scene.n_planes):
             t = intersect_plane(o, d, scene.pln_p[i], scene.pln_n[i], t_min, best)
             if t >= 0.0:
@@ -268,17 +278,32 @@ def _make_kernels(F: Features):
         return wp.vec3(0.0, 0.0, 0.0)
 
     @wp.func
+    def sphere_crossings(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float, i: int) -> wp.vec3:
+        """Transmission through sphere i along (o, d) over (0, t_max): kt per surface crossed."""
+        roots = sphere_roots(o, d, sphere_center(scene, i, time), scene.sph_r[i])
+        T = wp.vec3(1.0, 1.0, 1.0)
+        for k in range(2):
+            if roots[k] > 0.0 and roots[k] < t_max:
+                T = wp.cw_mul(T, crossing(scene, scene.sph_mat[i]))
+        return T
+
+    @wp.func
     def transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
         """Fraction of light arriving along the shadow ray (o, d) over (0, t_max): 0 when an
         opaque surface blocks it; transparent surfaces multiply it by their kt per crossing."""
         T = wp.vec3(1.0, 1.0, 1.0)
-        for i in range(scene.n_spheres):
-            roots = sphere_roots(o, d, sphere_center(scene, i, time), scene.sph_r[i])
-            for k in range(2):
-                if roots[k] > 0.0 and roots[k] < t_max:
-                    T = wp.cw_mul(T, crossing(scene, scene.sph_mat[i]))
-            if wp.max(T) <= 0.0:
-                return wp.vec3(0.0, 0.0, 0.0)
+        if scene.sph_bvh != wp.uint64(0):
+            query = wp.bvh_query_ray(scene.sph_bvh, o, d)
+            i = int(0)
+            while wp.bvh_query_next(query, i, t_max):
+                T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
+        else:
+            for i in range(scene.n_spheres):
+                T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
         for i in range(scene.n_planes):
             if intersect_plane(o, d, scene.pln_p[i], scene.pln_n[i], 0.0, t_max) >= 0.0:
                 T = wp.cw_mul(T, crossing(scene, scene.pln_mat[i]))

@@ -1,0 +1,93 @@
+"""A scene pays only for what it uses: feature detection, specialised kernels that give the same
+image as the all-features kernel, shared mesh assets, and the sphere BVH."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warprt
+from warprt import Features
+from warprt import build as build_module
+
+
+def _scene(**kw) -> warprt.Scene:
+    base = dict(camera=warprt.Camera(eye=(0, 1, 4), look_at=(0, 0.4, 0), width=24, height=16),
+                shapes=(warprt.Plane(material="floor"), warprt.Sphere(center=(0, 0.5, 0), radius=0.5, material="ball")),
+                materials={"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40)},
+                lights=(warprt.PointLight(position=(2, 3, 2), intensity=0.8),), ambient=0.05)
+    base.update(kw)
+    return warprt.Scene(**base)
+
+
+def features_of(scene: warprt.Scene) -> Features:
+    return warprt.Renderer(scene, device="cpu").features
+
+
+def test_plain_scene_needs_no_optional_feature():
+    assert features_of(_scene()) == Features()
+
+
+@pytest.mark.parametrize("change, flag", [
+    (dict(materials={"floor": warprt.Material(mirror=0.5), "ball": warprt.Material()}), "secondary"),
+    (dict(materials={"floor": warprt.Material(), "ball": warprt.Material(transparency=1.0)}), "refraction"),
+    (dict(materials={"floor": warprt.Material(mirror=0.5, glossy_exponent=30), "ball": warprt.Material()}), "glossy"),
+    (dict(lights=(warprt.SphereLight(),)), "area_lights"),
+    (dict(camera=warprt.Camera(aperture=0.1)), "lens"),
+    (dict(camera=warprt.Camera(eye_end=(1, 0, 5))), "motion"),
+    (dict(shapes=(warprt.Sphere(center_end=(1, 0, 0)),)), "motion"),
+    (dict(shapes=(warprt.Mesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]]),)), "meshes"),
+])
+def test_each_feature_is_detected(change, flag):
+    assert getattr(features_of(_scene(**change)), flag)
+
+
+def test_unused_materials_add_no_feature():
+    scene = _scene(materials={"floor": warprt.Material(), "ball": warprt.Material(),
+                              "unused_glass": warprt.Material(transparency=1.0, glossy_exponent=10)})
+    assert features_of(scene) == Features()
+
+
+@pytest.mark.parametrize("scene", [
+    _scene(),
+    _scene(materials={"floor": warprt.Material(kd=0.5, mirror=0.4), "ball": warprt.Material(kd=0.2, mirror=0.7)}),
+], ids=["plain", "mirrors"])
+def test_specialised_kernel_matches_the_full_kernel_bit_for_bit(scene):
+    specialised = warprt.Renderer(scene, device="cpu")
+    full = warprt.Renderer(scene, device="cpu", features=Features.full())
+    assert specialised.features != full.features
+    a = specialised.render(spp=4, progress=False).image
+    b = full.render(spp=4, progress=False).image
+    assert a.tobytes() == b.tobytes()
+
+
+def test_mesh_instances_share_one_asset():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    shapes = tuple(warprt.Mesh(vertices=v.copy(), faces=f, transform=warprt.Transform(translate=(x, 0, 0)))
+                   for x in range(3))
+    other = warprt.Mesh(vertices=v * 2.0, faces=f)
+    r = warprt.Renderer(_scene(shapes=shapes + (other,)), device="cpu")
+    assert len(r.built.meshes) == 2  # equal arrays share one wp.Mesh, different ones do not
+    assert r.built.data.n_inst == 4
+
+
+def test_sphere_bvh_finds_the_same_hits_as_the_loop(monkeypatch):
+    rng = np.random.default_rng(7)
+    centers = rng.uniform(-1.5, 1.5, (40, 3))
+    shapes = tuple(warprt.Sphere(center=tuple(c), radius=float(r), material="ball")
+                   for c, r in zip(centers, rng.uniform(0.05, 0.35, 40))) + (warprt.Plane(point=(0, -2, 0), material="floor"),)
+    scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=32, height=24))
+    with_bvh = warprt.Renderer(scene, device="cpu")
+    assert with_bvh.built.sphere_bvh is not None
+    monkeypatch.setattr(build_module, "SPHERE_BVH_MIN", 10 ** 9)
+    loop = warprt.Renderer(scene, device="cpu")
+    assert loop.built.sphere_bvh is None
+    a = with_bvh.render(spp=2, progress=False).image
+    b = loop.render(spp=2, progress=False).image
+    assert a.tobytes() == b.tobytes()
+    # and through the query API
+    o, d = warprt.camera_rays(scene)
+    ha, hb = warprt.trace_rays(with_bvh, o, d), warprt.trace_rays(loop, o, d)
+    np.testing.assert_array_equal(ha["shape"], hb["shape"])
+    np.testing.assert_array_equal(ha["t"], hb["t"])
