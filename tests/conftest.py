@@ -40,3 +40,22 @@ def cuda_device() -> str:
 @pytest.fixture
 def scenes_dir() -> pathlib.Path:
     return SCENES
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Report (and record for the benchmarks) how many render-kernel variants this run built:
+    each is one Warp module, a few seconds of compile on a cold cache."""
+    import json
+
+    from warprt import integrator, query
+
+    keys = sorted(f.key for f in integrator._cache)
+    record = {"render_kernel_variants": len(keys), "variants": keys, "query_module": bool(query._kernels)}
+    terminalreporter.write_line(f"warprt kernel variants built: {len(keys)} render ({', '.join(keys)})"
+                                f"{' + the query module' if query._kernels else ''}")
+    try:
+        path = ROOT / ".cache" / "test-kernel-variants.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(record, indent=1))
+    except OSError:
+        pass

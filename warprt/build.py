@@ -66,70 +66,114 @@ class Features:
 
 
 @wp.struct
+class SphereRec:
+    c0: wp.vec3  # centre at time 0
+    c1: wp.vec3  # centre at time 1
+    r: float
+    mat: int
+
+
+@wp.struct
+class PlaneRec:
+    p: wp.vec3
+    n: wp.vec3  # unit normal
+    mat: int
+
+
+@wp.struct
+class RectRec:
+    c: wp.vec3  # corner
+    e1: wp.vec3
+    e2: wp.vec3
+    n: wp.vec3  # unit normal, along e1 x e2
+    mat: int
+
+
+@wp.struct
+class DiskRec:
+    c: wp.vec3
+    n: wp.vec3  # unit normal
+    r: float
+    mat: int
+
+
+@wp.struct
+class InstRec:
+    mesh: wp.uint64  # wp.Mesh id of the asset
+    pos0: wp.vec3  # pose at time 0: translation, rotation, scale
+    rot0: wp.quat
+    scl0: wp.vec3
+    pos1: wp.vec3  # pose at time 1
+    rot1: wp.quat
+    scl1: wp.vec3
+    mat: int
+    smooth: int
+    nrm_off: int  # first vertex normal of the asset in SceneData.normals
+
+
+@wp.struct
+class MatRec:
+    ka: wp.vec3
+    kd: wp.vec3
+    ks: wp.vec3
+    p: float
+    km: wp.vec3
+    kt: wp.vec3
+    ior: float
+    fresnel: int
+    gloss: float
+    frost: float
+    emit: wp.vec3  # emitted radiance (area lights' own shapes)
+
+
+@wp.struct
+class PointLightRec:
+    pos: wp.vec3
+    intensity: wp.vec3  # I
+    inv_sq: int  # 1: inverse-square falloff
+
+
+@wp.struct
+class AreaLightRec:
+    kind: int  # LIGHT_RECT / LIGHT_SPHERE / LIGHT_DISK
+    shape: int  # index into the rect / sphere / disk table
+    le: wp.vec3  # radiance
+    samples: int
+
+
+@wp.struct
 class SceneData:
+    """Every table as an array of records. Warp passes structs to device functions by value, so
+    this struct is kept small: a dozen array headers, not one per field."""
+
     n_spheres: int
-    sph_c0: wp.array(dtype=wp.vec3)
-    sph_c1: wp.array(dtype=wp.vec3)
-    sph_r: wp.array(dtype=float)
-    sph_mat: wp.array(dtype=int)
+    spheres: wp.array(dtype=SphereRec)
     sph_bvh: wp.uint64  # BVH over the spheres' (swept) bounds, 0 when they are few
-
     n_planes: int
-    pln_p: wp.array(dtype=wp.vec3)
-    pln_n: wp.array(dtype=wp.vec3)
-    pln_mat: wp.array(dtype=int)
-
+    planes: wp.array(dtype=PlaneRec)
     n_rects: int
-    rct_c: wp.array(dtype=wp.vec3)
-    rct_e1: wp.array(dtype=wp.vec3)
-    rct_e2: wp.array(dtype=wp.vec3)
-    rct_n: wp.array(dtype=wp.vec3)
-    rct_mat: wp.array(dtype=int)
-
+    rects: wp.array(dtype=RectRec)
     n_disks: int
-    dsk_c: wp.array(dtype=wp.vec3)
-    dsk_n: wp.array(dtype=wp.vec3)
-    dsk_r: wp.array(dtype=float)
-    dsk_mat: wp.array(dtype=int)
-
+    disks: wp.array(dtype=DiskRec)
     n_inst: int
-    ins_mesh: wp.array(dtype=wp.uint64)
-    ins_pos0: wp.array(dtype=wp.vec3)
-    ins_rot0: wp.array(dtype=wp.quat)
-    ins_scl0: wp.array(dtype=wp.vec3)
-    ins_pos1: wp.array(dtype=wp.vec3)
-    ins_rot1: wp.array(dtype=wp.quat)
-    ins_scl1: wp.array(dtype=wp.vec3)
-    ins_mat: wp.array(dtype=int)
-    ins_smooth: wp.array(dtype=int)
-    ins_nrm_off: wp.array(dtype=int)  # first vertex normal of the instance's asset in ``normals``
+    insts: wp.array(dtype=InstRec)
     normals: wp.array(dtype=wp.vec3)
-
-    mat_ka: wp.array(dtype=wp.vec3)
-    mat_kd: wp.array(dtype=wp.vec3)
-    mat_ks: wp.array(dtype=wp.vec3)
-    mat_p: wp.array(dtype=float)
-    mat_km: wp.array(dtype=wp.vec3)
-    mat_kt: wp.array(dtype=wp.vec3)
-    mat_ior: wp.array(dtype=float)
-    mat_fresnel: wp.array(dtype=int)
-    mat_gloss: wp.array(dtype=float)
-    mat_frost: wp.array(dtype=float)
-    mat_emit: wp.array(dtype=wp.vec3)  # emitted radiance (area lights' shapes)
-
+    mats: wp.array(dtype=MatRec)
     n_plights: int
-    plt_pos: wp.array(dtype=wp.vec3)
-    plt_int: wp.array(dtype=wp.vec3)
-    plt_inv_sq: wp.array(dtype=int)
-
+    plights: wp.array(dtype=PointLightRec)
     n_alights: int
-    alt_kind: wp.array(dtype=int)
-    alt_shape: wp.array(dtype=int)  # index into the rect / sphere / disk tables
-    alt_le: wp.array(dtype=wp.vec3)
-    alt_samples: wp.array(dtype=int)
-
+    alights: wp.array(dtype=AreaLightRec)
     ambient: wp.vec3
     background: wp.vec3
+
+
+def _table(struct, rows: list[dict], device) -> "wp.array":
+    """An array of ``struct`` records from dicts of field values (one zero record when empty)."""
+    data = np.zeros(max(len(rows), 1), dtype=struct.numpy_dtype())
+    for name in data.dtype.names:
+        if rows:
+            data[name] = [row[name] for row in rows]
+    return wp.array(data, dtype=struct, device=device)
 
 
 @wp.struct
@@ -160,6 +204,7 @@ class RenderParams:
     t_min: float
     t_max: float
     clamp: float
+    moving: int  # 1 when something in the scene moves: sample time (runtime guard for general kernels)
 
 
 # --- mesh assets ------------------------------------------------------------------------------
@@ -330,18 +375,40 @@ class DeviceScene:
         self.shape_ids = shape_ids
 
         # --- copy to the device
-        def arr(rows, dtype, default):
-            data = rows if rows else [default]
-            return wp.array(np.asarray(data, dtype=np.float32 if dtype not in (int, wp.uint64) else None),
-                            dtype=dtype, device=dev)
-
         d = SceneData()
-        z3 = (0.0, 0.0, 0.0)
         d.n_spheres = len(sph)
-        d.sph_c0 = arr([s[0] for s in sph], wp.vec3, z3)
-        d.sph_c1 = arr([s[1] for s in sph], wp.vec3, z3)
-        d.sph_r = arr([s[2] for s in sph], float, 0.0)
-        d.sph_mat = wp.array([s[3] for s in sph] or [0], dtype=int, device=dev)
+        d.spheres = _table(SphereRec, [dict(c0=c0, c1=c1, r=r, mat=m) for c0, c1, r, m in sph], dev)
+        d.n_planes = len(pln)
+        d.planes = _table(PlaneRec, [dict(p=p, n=n, mat=m) for p, n, m in pln], dev)
+        d.n_rects = len(rct)
+        d.rects = _table(RectRec, [dict(c=c, e1=e1, e2=e2, n=_unit(np.cross(e1, e2)), mat=m) for c, e1, e2, m in rct], dev)
+        d.n_disks = len(dsk)
+        d.disks = _table(DiskRec, [dict(c=c, n=n, r=r, mat=m) for c, n, r, m in dsk], dev)
+        d.n_inst = len(ins)
+        d.insts = _table(InstRec, [dict(mesh=mid, pos0=t0.translate, rot0=t0.quaternion(), scl0=t0.scale,
+                                        pos1=t1.translate, rot1=_same_hemisphere(t1.quaternion(), t0.quaternion()),
+                                        scl1=t1.scale, mat=m, smooth=sm, nrm_off=off)
+                                   for mid, t0, t1, m, sm, off in ins], dev)
+        d.normals = wp.array(np.concatenate(normals) if normals else np.zeros((1, 3), np.float32),
+                             dtype=wp.vec3, device=dev)
+        d.mats = _table(MatRec, [dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
+                                      fresnel=FRESNEL_IDS[m.fresnel], gloss=m.glossy_exponent,
+                                      frost=m.frosted_exponent, emit=le) for m, le in mats], dev)
+        d.n_plights = len(plights)
+        d.plights = _table(PointLightRec, [dict(pos=l.position, intensity=l.intensity,
+                                                inv_sq=int(l.falloff == "inverse_square")) for l in plights], dev)
+        d.n_alights = len(alights)
+        d.alights = _table(AreaLightRec, [dict(kind=k, shape=i, le=le, samples=n) for k, i, le, n in alights], dev)
+        d.ambient = wp.vec3(*scene.ambient)
+        d.background = wp.vec3(*scene.background)
+        self._sphere_bvh(d, sph)
+        self.data = d
+        self.camera = camera_data(scene)
+
+
+    def _sphere_bvh(self, d: SceneData, sph: list) -> None:
+        """From SPHERE_BVH_MIN spheres on, a wp.Bvh over their bounds (swept over the motion)."""
+        dev = self.device
         self.sphere_bvh = None
         d.sph_bvh = wp.uint64(0)
         if len(sph) >= SPHERE_BVH_MIN:
@@ -354,62 +421,6 @@ class DeviceScene:
             self.sphere_bvh = wp.Bvh(wp.array(lowers, dtype=wp.vec3, device=dev),
                                      wp.array(uppers, dtype=wp.vec3, device=dev))
             d.sph_bvh = wp.uint64(self.sphere_bvh.id)
-        d.n_planes = len(pln)
-        d.pln_p = arr([p[0] for p in pln], wp.vec3, z3)
-        d.pln_n = arr([p[1] for p in pln], wp.vec3, z3)
-        d.pln_mat = wp.array([p[2] for p in pln] or [0], dtype=int, device=dev)
-        d.n_rects = len(rct)
-        d.rct_c = arr([r[0] for r in rct], wp.vec3, z3)
-        d.rct_e1 = arr([r[1] for r in rct], wp.vec3, z3)
-        d.rct_e2 = arr([r[2] for r in rct], wp.vec3, z3)
-        d.rct_n = arr([_unit(np.cross(r[1], r[2])) for r in rct], wp.vec3, z3)
-        d.rct_mat = wp.array([r[3] for r in rct] or [0], dtype=int, device=dev)
-        d.n_disks = len(dsk)
-        d.dsk_c = arr([k[0] for k in dsk], wp.vec3, z3)
-        d.dsk_n = arr([k[1] for k in dsk], wp.vec3, z3)
-        d.dsk_r = arr([k[2] for k in dsk], float, 0.0)
-        d.dsk_mat = wp.array([k[3] for k in dsk] or [0], dtype=int, device=dev)
-
-        d.n_inst = len(ins)
-        d.ins_mesh = wp.array([x[0] for x in ins] or [0], dtype=wp.uint64, device=dev)
-        d.ins_pos0 = arr([x[1].translate for x in ins], wp.vec3, z3)
-        d.ins_rot0 = arr([x[1].quaternion() for x in ins], wp.quat, (0.0, 0.0, 0.0, 1.0))
-        d.ins_scl0 = arr([x[1].scale for x in ins], wp.vec3, (1.0, 1.0, 1.0))
-        d.ins_pos1 = arr([x[2].translate for x in ins], wp.vec3, z3)
-        d.ins_rot1 = arr([_same_hemisphere(x[2].quaternion(), x[1].quaternion()) for x in ins], wp.quat,
-                         (0.0, 0.0, 0.0, 1.0))
-        d.ins_scl1 = arr([x[2].scale for x in ins], wp.vec3, (1.0, 1.0, 1.0))
-        d.ins_mat = wp.array([x[3] for x in ins] or [0], dtype=int, device=dev)
-        d.ins_smooth = wp.array([x[4] for x in ins] or [0], dtype=int, device=dev)
-        d.ins_nrm_off = wp.array([x[5] for x in ins] or [0], dtype=int, device=dev)
-        d.normals = wp.array(np.concatenate(normals) if normals else np.zeros((1, 3), np.float32),
-                             dtype=wp.vec3, device=dev)
-
-        d.mat_ka = arr([m.ka for m, _ in mats], wp.vec3, z3)
-        d.mat_kd = arr([m.kd for m, _ in mats], wp.vec3, z3)
-        d.mat_ks = arr([m.ks for m, _ in mats], wp.vec3, z3)
-        d.mat_p = arr([m.p for m, _ in mats], float, 0.0)
-        d.mat_km = arr([m.mirror for m, _ in mats], wp.vec3, z3)
-        d.mat_kt = arr([m.transparency for m, _ in mats], wp.vec3, z3)
-        d.mat_ior = arr([m.ior for m, _ in mats], float, 1.0)
-        d.mat_fresnel = wp.array([FRESNEL_IDS[m.fresnel] for m, _ in mats], dtype=int, device=dev)
-        d.mat_gloss = arr([m.glossy_exponent for m, _ in mats], float, 0.0)
-        d.mat_frost = arr([m.frosted_exponent for m, _ in mats], float, 0.0)
-        d.mat_emit = arr([le for _, le in mats], wp.vec3, z3)
-
-        d.n_plights = len(plights)
-        d.plt_pos = arr([l.position for l in plights], wp.vec3, z3)
-        d.plt_int = arr([l.intensity for l in plights], wp.vec3, z3)
-        d.plt_inv_sq = wp.array([int(l.falloff == "inverse_square") for l in plights] or [0], dtype=int, device=dev)
-        d.n_alights = len(alights)
-        d.alt_kind = wp.array([a[0] for a in alights] or [0], dtype=int, device=dev)
-        d.alt_shape = wp.array([a[1] for a in alights] or [0], dtype=int, device=dev)
-        d.alt_le = arr([a[2] for a in alights], wp.vec3, z3)
-        d.alt_samples = wp.array([a[3] for a in alights] or [1], dtype=int, device=dev)
-        d.ambient = wp.vec3(*scene.ambient)
-        d.background = wp.vec3(*scene.background)
-        self.data = d
-        self.camera = camera_data(scene)
 
 
 def _asset_key(m: Mesh) -> tuple:
@@ -450,7 +461,7 @@ def camera_data(scene: Scene) -> CameraData:
     return c
 
 
-def render_params(scene: Scene, spp: int, seed: int) -> RenderParams:
+def render_params(scene: Scene, spp: int, seed: int, features: Features | None = None) -> RenderParams:
     s = scene.render
     p = RenderParams()
     p.spp = spp
@@ -461,4 +472,5 @@ def render_params(scene: Scene, spp: int, seed: int) -> RenderParams:
     p.t_min = s.t_min
     p.t_max = s.t_max if math.isfinite(s.t_max) else 3.0e38
     p.clamp = s.clamp
+    p.moving = int(features.motion) if features is not None else 1
     return p

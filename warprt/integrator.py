@@ -71,6 +71,15 @@ class Hit:
     mat: int
 
 
+@wp.struct
+class MeshHit:
+    t: float
+    index: int  # instance, -1 for none
+    face: int
+    u: float
+    v: float
+
+
 @wp.func
 def camera_ray(cam: CameraData, fx: float, fy: float, lens: wp.vec2, time: float) -> Ray:
     """Ray through raster point (fx, fy) (pixel units, y down from the top) at ``time``.
@@ -120,31 +129,83 @@ def _make_kernels(F: Features):
 
     @wp.func
     def instance_pose_pos(scene: SceneData, i: int, time: float) -> wp.vec3:
-        p = scene.ins_pos0[i]
+        p = scene.insts[i].pos0
         if wp.static(F.motion):
-            p = p + (scene.ins_pos1[i] - p) * time
+            p = p + (scene.insts[i].pos1 - p) * time
         return p
 
     @wp.func
     def instance_pose_rot(scene: SceneData, i: int, time: float) -> wp.quat:
-        q = scene.ins_rot0[i]
+        q = scene.insts[i].rot0
         if wp.static(F.motion):
-            q = wp.quat_slerp(q, scene.ins_rot1[i], time)
+            q = wp.quat_slerp(q, scene.insts[i].rot1, time)
         return q
 
     @wp.func
     def instance_pose_scl(scene: SceneData, i: int, time: float) -> wp.vec3:
-        s = scene.ins_scl0[i]
+        s = scene.insts[i].scl0
         if wp.static(F.motion):
-            s = s + (scene.ins_scl1[i] - s) * time
+            s = s + (scene.insts[i].scl1 - s) * time
         return s
 
     @wp.func
     def sphere_center(scene: SceneData, i: int, time: float) -> wp.vec3:
-        c = scene.sph_c0[i]
+        c = scene.spheres[i].c0
         if wp.static(F.motion):
-            c = c + (scene.sph_c1[i] - c) * time
+            c = c + (scene.spheres[i].c1 - c) * time
         return c
+
+    @wp.func
+    def mesh_nearest(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> MeshHit:
+        """Nearest triangle hit over all mesh instances in (t_min, t_max); index -1 for none."""
+        best = float(t_max)
+        r = MeshHit()
+        r.index = -1
+        start = o + d * t_min
+        for i in range(scene.n_inst):
+            pos = instance_pose_pos(scene, i, time)
+            rot = instance_pose_rot(scene, i, time)
+            scl = instance_pose_scl(scene, i, time)
+            o_obj = wp.cw_div(wp.quat_rotate_inv(rot, start - pos), scl)
+            d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
+            q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj, d_obj, best - t_min)
+            if q.result:
+                if q.t + t_min < best:
+                    best = q.t + t_min
+                    r.t = best
+                    r.index = i
+                    r.face = q.face
+                    r.u = q.u
+                    r.v = q.v
+        return r
+
+    @wp.func
+    def mesh_details(scene: SceneData, h_in: Hit, face: int, bu: float, bv: float, time: float) -> Hit:
+        """h_in with the point, normals and material of its mesh hit filled in."""
+        h = h_in
+        index = h.index
+        mid = scene.insts[index].mesh
+        pos = instance_pose_pos(scene, index, time)
+        rot = instance_pose_rot(scene, index, time)
+        scl = instance_pose_scl(scene, index, time)
+        p_obj = wp.mesh_eval_position(mid, face, bu, bv)
+        h.p = wp.quat_rotate(rot, wp.cw_mul(p_obj, scl)) + pos
+        n_obj = wp.mesh_eval_face_normal(mid, face)
+        h.ng = wp.normalize(wp.quat_rotate(rot, wp.cw_div(n_obj, scl)))
+        h.ns = h.ng
+        if scene.insts[index].smooth != 0:
+            mesh = wp.mesh_get(mid)
+            off = scene.insts[index].nrm_off
+            n0 = scene.normals[off + mesh.indices[face * 3 + 0]]
+            n1 = scene.normals[off + mesh.indices[face * 3 + 1]]
+            n2 = scene.normals[off + mesh.indices[face * 3 + 2]]
+            ns_obj = bu * n0 + bv * n1 + (1.0 - bu - bv) * n2
+            ns_w = wp.quat_rotate(rot, wp.cw_div(ns_obj, scl))
+            if wp.length(ns_w) > 0.0:
+                h.ns = wp.normalize(ns_w)
+        h.mag = max_abs(h.p) + max_abs(pos)
+        h.mat = scene.insts[index].mat
+        return h
 
     @wp.func
     def closest_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> Hit:
@@ -158,53 +219,46 @@ def _make_kernels(F: Features):
             query = wp.bvh_query_ray(scene.sph_bvh, o, d)
             i = int(0)
             while wp.bvh_query_next(query, i, best):
-                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.sph_r[i], t_min, best)
+                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
                 if t >= 0.0:
                     best = t
                     kind = KIND_SPHERE
                     index = i
         else:
             for i in range(scene.n_spheres):
-                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.sph_r[i], t_min, best)
+                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
                 if t >= 0.0:
                     best = t
                     kind = KIND_SPHERE
                     index = i
         for i in range(scene.n_planes):
-            t = intersect_plane(o, d, scene.pln_p[i], scene.pln_n[i], t_min, best)
+            t = intersect_plane(o, d, scene.planes[i].p, scene.planes[i].n, t_min, best)
             if t >= 0.0:
                 best = t
                 kind = KIND_PLANE
                 index = i
         for i in range(scene.n_rects):
-            t = intersect_rect(o, d, scene.rct_c[i], scene.rct_e1[i], scene.rct_e2[i], t_min, best)
+            t = intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, t_min, best)
             if t >= 0.0:
                 best = t
                 kind = KIND_RECT
                 index = i
         for i in range(scene.n_disks):
-            t = intersect_disk(o, d, scene.dsk_c[i], scene.dsk_n[i], scene.dsk_r[i], t_min, best)
+            t = intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, t_min, best)
             if t >= 0.0:
                 best = t
                 kind = KIND_DISK
                 index = i
         if wp.static(F.meshes):
-            start = o + d * t_min
-            for i in range(scene.n_inst):
-                pos = instance_pose_pos(scene, i, time)
-                rot = instance_pose_rot(scene, i, time)
-                scl = instance_pose_scl(scene, i, time)
-                o_obj = wp.cw_div(wp.quat_rotate_inv(rot, start - pos), scl)
-                d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
-                q = wp.mesh_query_ray(scene.ins_mesh[i], o_obj, d_obj, best - t_min)
-                if q.result:
-                    if q.t + t_min < best:
-                        best = q.t + t_min
-                        kind = KIND_MESH
-                        index = i
-                        face = q.face
-                        bu = q.u
-                        bv = q.v
+            if scene.n_inst > 0:
+                m = mesh_nearest(scene, o, d, t_min, best, time)
+                if m.index >= 0:
+                    best = m.t
+                    kind = KIND_MESH
+                    index = m.index
+                    face = m.face
+                    bu = m.u
+                    bv = m.v
 
         h = Hit()
         h.t = -1.0
@@ -216,75 +270,85 @@ def _make_kernels(F: Features):
         p = o + d * best
         if kind == KIND_SPHERE:
             c = sphere_center(scene, index, time)
-            r = scene.sph_r[index]
+            r = scene.spheres[index].r
             h.p = refine_on_sphere(p, c, r)
             h.ng = wp.normalize(h.p - c)
             h.ns = h.ng
             h.mag = max_abs(c) + r
-            h.mat = scene.sph_mat[index]
+            h.mat = scene.spheres[index].mat
         elif kind == KIND_PLANE:
-            n = scene.pln_n[index]
-            h.p = refine_on_plane(p, scene.pln_p[index], n)
+            n = scene.planes[index].n
+            h.p = refine_on_plane(p, scene.planes[index].p, n)
             h.ng = n
             h.ns = n
-            h.mag = wp.max(max_abs(h.p), max_abs(scene.pln_p[index]))
-            h.mat = scene.pln_mat[index]
+            h.mag = wp.max(max_abs(h.p), max_abs(scene.planes[index].p))
+            h.mat = scene.planes[index].mat
         elif kind == KIND_RECT:
-            n = scene.rct_n[index]
-            c = scene.rct_c[index]
+            n = scene.rects[index].n
+            c = scene.rects[index].c
             h.p = refine_on_plane(p, c, n)
             h.ng = n
             h.ns = n
-            h.mag = max_abs(c) + max_abs(scene.rct_e1[index]) + max_abs(scene.rct_e2[index])
-            h.mat = scene.rct_mat[index]
+            h.mag = max_abs(c) + max_abs(scene.rects[index].e1) + max_abs(scene.rects[index].e2)
+            h.mat = scene.rects[index].mat
         elif kind == KIND_DISK:
-            n = scene.dsk_n[index]
-            c = scene.dsk_c[index]
+            n = scene.disks[index].n
+            c = scene.disks[index].c
             h.p = refine_on_plane(p, c, n)
             h.ng = n
             h.ns = n
-            h.mag = max_abs(c) + scene.dsk_r[index]
-            h.mat = scene.dsk_mat[index]
+            h.mag = max_abs(c) + scene.disks[index].r
+            h.mat = scene.disks[index].mat
         if wp.static(F.meshes):
             if kind == KIND_MESH:
-                mid = scene.ins_mesh[index]
-                pos = instance_pose_pos(scene, index, time)
-                rot = instance_pose_rot(scene, index, time)
-                scl = instance_pose_scl(scene, index, time)
-                p_obj = wp.mesh_eval_position(mid, face, bu, bv)
-                h.p = wp.quat_rotate(rot, wp.cw_mul(p_obj, scl)) + pos
-                n_obj = wp.mesh_eval_face_normal(mid, face)
-                h.ng = wp.normalize(wp.quat_rotate(rot, wp.cw_div(n_obj, scl)))
-                h.ns = h.ng
-                if scene.ins_smooth[index] != 0:
-                    mesh = wp.mesh_get(mid)
-                    off = scene.ins_nrm_off[index]
-                    n0 = scene.normals[off + mesh.indices[face * 3 + 0]]
-                    n1 = scene.normals[off + mesh.indices[face * 3 + 1]]
-                    n2 = scene.normals[off + mesh.indices[face * 3 + 2]]
-                    ns_obj = bu * n0 + bv * n1 + (1.0 - bu - bv) * n2
-                    ns_w = wp.quat_rotate(rot, wp.cw_div(ns_obj, scl))
-                    if wp.length(ns_w) > 0.0:
-                        h.ns = wp.normalize(ns_w)
-                h.mag = max_abs(h.p) + max_abs(pos)
-                h.mat = scene.ins_mat[index]
+                h = mesh_details(scene, h, face, bu, bv, time)
         return h
 
     @wp.func
     def crossing(scene: SceneData, mat: int) -> wp.vec3:
         """Light passing one surface of material ``mat`` in a shadow ray: kt, or 0 when opaque."""
         if wp.static(F.refraction):
-            return scene.mat_kt[mat]
+            return scene.mats[mat].kt
         return wp.vec3(0.0, 0.0, 0.0)
 
     @wp.func
     def sphere_crossings(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float, i: int) -> wp.vec3:
         """Transmission through sphere i along (o, d) over (0, t_max): kt per surface crossed."""
-        roots = sphere_roots(o, d, sphere_center(scene, i, time), scene.sph_r[i])
+        roots = sphere_roots(o, d, sphere_center(scene, i, time), scene.spheres[i].r)
         T = wp.vec3(1.0, 1.0, 1.0)
         for k in range(2):
             if roots[k] > 0.0 and roots[k] < t_max:
-                T = wp.cw_mul(T, crossing(scene, scene.sph_mat[i]))
+                T = wp.cw_mul(T, crossing(scene, scene.spheres[i].mat))
+        return T
+
+    @wp.func
+    def mesh_transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
+        T = wp.vec3(1.0, 1.0, 1.0)
+        for i in range(scene.n_inst):
+            pos = instance_pose_pos(scene, i, time)
+            rot = instance_pose_rot(scene, i, time)
+            scl = instance_pose_scl(scene, i, time)
+            o_obj = wp.cw_div(wp.quat_rotate_inv(rot, o - pos), scl)
+            d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
+            kt = crossing(scene, scene.insts[i].mat)
+            if wp.max(kt) <= 0.0:
+                if wp.mesh_query_ray_anyhit(scene.insts[i].mesh, o_obj, d_obj, t_max):
+                    return wp.vec3(0.0, 0.0, 0.0)
+            else:
+                # transparent mesh: walk its crossings one by one
+                t0 = float(0.0)
+                d_len = wp.length(d_obj)
+                for _k in range(64):
+                    q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj + d_obj * t0, d_obj, t_max - t0)
+                    if not q.result:
+                        break
+                    T = wp.cw_mul(T, kt)
+                    t0 = t0 + q.t
+                    t0 = t0 + spawn_offset(max_abs(o_obj + d_obj * t0)) / d_len
+                    if t0 >= t_max or wp.max(T) <= 0.0:
+                        break
+            if wp.max(T) <= 0.0:
+                return wp.vec3(0.0, 0.0, 0.0)
         return T
 
     @wp.func
@@ -305,47 +369,100 @@ def _make_kernels(F: Features):
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         for i in range(scene.n_planes):
-            if intersect_plane(o, d, scene.pln_p[i], scene.pln_n[i], 0.0, t_max) >= 0.0:
-                T = wp.cw_mul(T, crossing(scene, scene.pln_mat[i]))
+            if intersect_plane(o, d, scene.planes[i].p, scene.planes[i].n, 0.0, t_max) >= 0.0:
+                T = wp.cw_mul(T, crossing(scene, scene.planes[i].mat))
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         for i in range(scene.n_rects):
-            if intersect_rect(o, d, scene.rct_c[i], scene.rct_e1[i], scene.rct_e2[i], 0.0, t_max) >= 0.0:
-                T = wp.cw_mul(T, crossing(scene, scene.rct_mat[i]))
+            if intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, 0.0, t_max) >= 0.0:
+                T = wp.cw_mul(T, crossing(scene, scene.rects[i].mat))
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         for i in range(scene.n_disks):
-            if intersect_disk(o, d, scene.dsk_c[i], scene.dsk_n[i], scene.dsk_r[i], 0.0, t_max) >= 0.0:
-                T = wp.cw_mul(T, crossing(scene, scene.dsk_mat[i]))
+            if intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, 0.0, t_max) >= 0.0:
+                T = wp.cw_mul(T, crossing(scene, scene.disks[i].mat))
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         if wp.static(F.meshes):
-            for i in range(scene.n_inst):
-                pos = instance_pose_pos(scene, i, time)
-                rot = instance_pose_rot(scene, i, time)
-                scl = instance_pose_scl(scene, i, time)
-                o_obj = wp.cw_div(wp.quat_rotate_inv(rot, o - pos), scl)
-                d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
-                kt = crossing(scene, scene.ins_mat[i])
-                if wp.max(kt) <= 0.0:
-                    if wp.mesh_query_ray_anyhit(scene.ins_mesh[i], o_obj, d_obj, t_max):
-                        return wp.vec3(0.0, 0.0, 0.0)
-                else:
-                    # transparent mesh: walk its crossings one by one
-                    t0 = float(0.0)
-                    d_len = wp.length(d_obj)
-                    for _k in range(64):
-                        q = wp.mesh_query_ray(scene.ins_mesh[i], o_obj + d_obj * t0, d_obj, t_max - t0)
-                        if not q.result:
-                            break
-                        T = wp.cw_mul(T, kt)
-                        t0 = t0 + q.t
-                        t0 = t0 + spawn_offset(max_abs(o_obj + d_obj * t0)) / d_len
-                        if t0 >= t_max or wp.max(T) <= 0.0:
-                            break
-                if wp.max(T) <= 0.0:
-                    return wp.vec3(0.0, 0.0, 0.0)
+            if scene.n_inst > 0:
+                T = wp.cw_mul(T, mesh_transmittance(scene, o, d, t_max, time))
         return T
+
+    @wp.func
+    def area_lights_direct(scene: SceneData, params: RenderParams, pixel: int, sample: int, key: wp.uint32,
+                           origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3,
+                           p_exp: float, time: float) -> wp.vec4:
+        """Direct light from the area lights: ``samples`` stratified shadow rays per light (rgb, rays in w)."""
+        L = wp.vec3(0.0, 0.0, 0.0)
+        rays = int(0)
+        for j in range(scene.n_alights):
+            kind = scene.alights[j].kind
+            idx = scene.alights[j].shape
+            ns = scene.alights[j].samples
+            le = scene.alights[j].le
+            acc = wp.vec3(0.0, 0.0, 0.0)
+            dim = hash2(key, wp.uint32(16 + j))
+            for k in range(ns):
+                u = sample_2d(params.sampler, params.seed, pixel, sample * ns + k, params.spp * ns, dim)
+                y = wp.vec3(0.0, 0.0, 0.0)
+                l = wp.vec3(0.0, 0.0, 0.0)
+                dist = float(0.0)
+                inv_pdf = float(0.0)  # 1 / (solid-angle density)
+                y_mag = float(0.0)
+                if kind == LIGHT_SPHERE:
+                    c = scene.spheres[idx].c0
+                    r = scene.spheres[idx].r
+                    to_c = c - origin
+                    dc = wp.length(to_c)
+                    if dc <= r or r <= 0.0:
+                        continue
+                    s = r / dc
+                    omc = s * s / (1.0 + wp.sqrt(wp.max(0.0, 1.0 - s * s)))  # 1 - cos θmax
+                    l = frame_from_z(to_c / dc, square_to_cone(u, omc))
+                    t = intersect_sphere(origin, l, c, r, 0.0, 3.0e38)
+                    if t < 0.0:
+                        t = wp.dot(to_c, l)  # grazing the silhouette: use the tangent point
+                    dist = t
+                    inv_pdf = 2.0 * wp.pi * omc
+                    y_mag = max_abs(c) + r
+                else:
+                    ln = wp.vec3(0.0, 0.0, 0.0)
+                    area = float(0.0)
+                    if kind == LIGHT_RECT:
+                        e1 = scene.rects[idx].e1
+                        e2 = scene.rects[idx].e2
+                        y = scene.rects[idx].c + u[0] * e1 + u[1] * e2
+                        ln = scene.rects[idx].n
+                        area = wp.length(wp.cross(e1, e2))
+                        y_mag = max_abs(scene.rects[idx].c) + max_abs(e1) + max_abs(e2)
+                    else:
+                        ln = scene.disks[idx].n
+                        r = scene.disks[idx].r
+                        dsk = square_to_disk(u) * r
+                        y = scene.disks[idx].c + frame_from_z(ln, wp.vec3(dsk[0], dsk[1], 0.0))
+                        area = wp.pi * r * r
+                        y_mag = max_abs(scene.disks[idx].c) + r
+                    to_y = y - origin
+                    dist = wp.length(to_y)
+                    if dist <= 0.0 or area <= 0.0:
+                        continue
+                    l = to_y / dist
+                    cos_l = -wp.dot(ln, l)
+                    if cos_l <= 0.0:
+                        continue  # the back of a one-sided emitter
+                    inv_pdf = area * cos_l / (dist * dist)
+                if wp.dot(ng, l) <= 0.0:
+                    continue
+                f = blinn_phong(n, l, v, kd, ks, p_exp)
+                if wp.max(f) <= 0.0:
+                    continue
+                rays += 1
+                T = transmittance(scene, origin, l, dist - 2.0 * spawn_offset(y_mag), time)
+                if wp.max(T) <= 0.0:
+                    continue
+                acc += wp.cw_mul(T, f) * (inv_pdf / wp.pi)
+            L += wp.cw_mul(le, acc) / float(ns)
+        return wp.vec4(L[0], L[1], L[2], float(rays))
 
     @wp.func
     def direct_light(scene: SceneData, params: RenderParams, pixel: int, sample: int, key: wp.uint32,
@@ -356,14 +473,14 @@ def _make_kernels(F: Features):
         sample acts as a point light of lecture intensity Le cosθ' dA / π, so the diffuse term is
         exactly (kd/π)·E for irradiance E.
         """
-        kd = scene.mat_kd[h.mat]
-        ks = scene.mat_ks[h.mat]
-        p_exp = scene.mat_p[h.mat]
+        kd = scene.mats[h.mat].kd
+        ks = scene.mats[h.mat].ks
+        p_exp = scene.mats[h.mat].p
         origin = spawn_origin(h.p, ng, h.mag, 1.0)
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for i in range(scene.n_plights):
-            to_light = scene.plt_pos[i] - origin
+            to_light = scene.plights[i].pos - origin
             dist = wp.length(to_light)
             if dist <= 0.0:
                 continue
@@ -374,81 +491,18 @@ def _make_kernels(F: Features):
             if wp.max(f) <= 0.0:
                 continue
             rays += 1
-            T = transmittance(scene, origin, l, dist - spawn_offset(max_abs(scene.plt_pos[i])), time)
+            T = transmittance(scene, origin, l, dist - spawn_offset(max_abs(scene.plights[i].pos)), time)
             if wp.max(T) <= 0.0:
                 continue
-            I = scene.plt_int[i]
-            if scene.plt_inv_sq[i] != 0:
+            I = scene.plights[i].intensity
+            if scene.plights[i].inv_sq != 0:
                 I = I / (dist * dist)
             L += wp.cw_mul(T, wp.cw_mul(I, f))
         if wp.static(F.area_lights):
-            for j in range(scene.n_alights):
-                kind = scene.alt_kind[j]
-                idx = scene.alt_shape[j]
-                ns = scene.alt_samples[j]
-                le = scene.alt_le[j]
-                acc = wp.vec3(0.0, 0.0, 0.0)
-                dim = hash2(key, wp.uint32(16 + j))
-                for k in range(ns):
-                    u = sample_2d(params.sampler, params.seed, pixel, sample * ns + k, params.spp * ns, dim)
-                    y = wp.vec3(0.0, 0.0, 0.0)
-                    l = wp.vec3(0.0, 0.0, 0.0)
-                    dist = float(0.0)
-                    inv_pdf = float(0.0)  # 1 / (solid-angle density)
-                    y_mag = float(0.0)
-                    if kind == LIGHT_SPHERE:
-                        c = scene.sph_c0[idx]
-                        r = scene.sph_r[idx]
-                        to_c = c - origin
-                        dc = wp.length(to_c)
-                        if dc <= r or r <= 0.0:
-                            continue
-                        s = r / dc
-                        omc = s * s / (1.0 + wp.sqrt(wp.max(0.0, 1.0 - s * s)))  # 1 - cos θmax
-                        l = frame_from_z(to_c / dc, square_to_cone(u, omc))
-                        t = intersect_sphere(origin, l, c, r, 0.0, 3.0e38)
-                        if t < 0.0:
-                            t = wp.dot(to_c, l)  # grazing the silhouette: use the tangent point
-                        dist = t
-                        inv_pdf = 2.0 * wp.pi * omc
-                        y_mag = max_abs(c) + r
-                    else:
-                        ln = wp.vec3(0.0, 0.0, 0.0)
-                        area = float(0.0)
-                        if kind == LIGHT_RECT:
-                            e1 = scene.rct_e1[idx]
-                            e2 = scene.rct_e2[idx]
-                            y = scene.rct_c[idx] + u[0] * e1 + u[1] * e2
-                            ln = scene.rct_n[idx]
-                            area = wp.length(wp.cross(e1, e2))
-                            y_mag = max_abs(scene.rct_c[idx]) + max_abs(e1) + max_abs(e2)
-                        else:
-                            ln = scene.dsk_n[idx]
-                            r = scene.dsk_r[idx]
-                            dsk = square_to_disk(u) * r
-                            y = scene.dsk_c[idx] + frame_from_z(ln, wp.vec3(dsk[0], dsk[1], 0.0))
-                            area = wp.pi * r * r
-                            y_mag = max_abs(scene.dsk_c[idx]) + r
-                        to_y = y - origin
-                        dist = wp.length(to_y)
-                        if dist <= 0.0 or area <= 0.0:
-                            continue
-                        l = to_y / dist
-                        cos_l = -wp.dot(ln, l)
-                        if cos_l <= 0.0:
-                            continue  # the back of a one-sided emitter
-                        inv_pdf = area * cos_l / (dist * dist)
-                    if wp.dot(ng, l) <= 0.0:
-                        continue
-                    f = blinn_phong(n, l, v, kd, ks, p_exp)
-                    if wp.max(f) <= 0.0:
-                        continue
-                    rays += 1
-                    T = transmittance(scene, origin, l, dist - 2.0 * spawn_offset(y_mag), time)
-                    if wp.max(T) <= 0.0:
-                        continue
-                    acc += wp.cw_mul(T, f) * (inv_pdf / wp.pi)
-                L += wp.cw_mul(le, acc) / float(ns)
+            if scene.n_alights > 0:
+                al = area_lights_direct(scene, params, pixel, sample, key, origin, ng, n, v, kd, ks, p_exp, time)
+                L += wp.vec3(al[0], al[1], al[2])
+                rays += int(al[3])
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
     @wp.func
@@ -476,11 +530,13 @@ def _make_kernels(F: Features):
             uf = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_FILM))
             time = cam.t_open
             if wp.static(F.motion):
-                ut = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_TIME))
-                time = cam.t_open + (cam.t_close - cam.t_open) * ut[0]
+                if params.moving != 0 and cam.t_close > cam.t_open:
+                    ut = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_TIME))
+                    time = cam.t_open + (cam.t_close - cam.t_open) * ut[0]
             ul = wp.vec2(0.5, 0.5)
             if wp.static(F.lens):
-                ul = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_LENS))
+                if cam.lens_radius > 0.0:
+                    ul = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_LENS))
             ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
 
             L = wp.vec3(0.0, 0.0, 0.0)
@@ -513,13 +569,13 @@ def _make_kernels(F: Features):
                     n = -n
                 if wp.dot(n, e.d) > 0.0:
                     n = ng  # a shading normal facing away from the viewer: fall back
-                le = scene.mat_emit[h.mat]
+                le = scene.mats[h.mat].emit
                 if wp.max(le) > 0.0:
                     if front:
                         L += wp.cw_mul(e.w, le)
                     continue
                 v = -e.d
-                local = wp.cw_mul(scene.mat_ka[h.mat], scene.ambient)
+                local = wp.cw_mul(scene.mats[h.mat].ka, scene.ambient)
                 dl = direct_light(scene, params, pixel, s, e.key, h, ng, n, v, time)
                 rays += int(dl[3])
                 local += wp.vec3(dl[0], dl[1], dl[2])
@@ -527,11 +583,11 @@ def _make_kernels(F: Features):
 
                 if wp.static(F.secondary):
                     if e.depth < params.max_depth:
-                        w_refl = scene.mat_km[h.mat]
+                        w_refl = scene.mats[h.mat].km
                         if wp.static(F.refraction):
-                            kt = scene.mat_kt[h.mat]
+                            kt = scene.mats[h.mat].kt
                             if wp.max(kt) > 0.0:
-                                ior = scene.mat_ior[h.mat]
+                                ior = scene.mats[h.mat].ior
                                 eta_i = float(1.0)
                                 eta_t = float(ior)
                                 if not front:
@@ -542,13 +598,13 @@ def _make_kernels(F: Features):
                                     w_refl = w_refl + kt  # total internal reflection
                                 else:
                                     w_refr = kt
-                                    mode = scene.mat_fresnel[h.mat]
+                                    mode = scene.mats[h.mat].fresnel
                                     if mode > 0:
                                         fr = fresnel(mode, -wp.dot(e.d, n), eta_i, eta_t)
                                         w_refl = w_refl + kt * fr
                                         w_refr = kt * (1.0 - fr)
                                     if wp.static(F.glossy):
-                                        frost = scene.mat_frost[h.mat]
+                                        frost = scene.mats[h.mat].frost
                                         if frost > 0.0:
                                             ug = sample_2d(params.sampler, params.seed, pixel, s, params.spp,
                                                            hash2(e.key, wp.uint32(2)))
@@ -570,7 +626,7 @@ def _make_kernels(F: Features):
                         if wp.max(rw) > params.min_weight:
                             r = reflect(e.d, n)
                             if wp.static(F.glossy):
-                                gloss = scene.mat_gloss[h.mat]
+                                gloss = scene.mats[h.mat].gloss
                                 if gloss > 0.0:
                                     ug = sample_2d(params.sampler, params.seed, pixel, s, params.spp,
                                                    hash2(e.key, wp.uint32(1)))

@@ -87,7 +87,7 @@ class Renderer:
         dev = self.device
         one = [wp.zeros(1, dtype=t, device=dev) for t in (wp.vec3, float, int, int)]
         wp.launch(self.kernel, dim=1, device=dev,
-                  inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0), 0, 0, 1, 1, 0, 0, *one])
+                  inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features), 0, 0, 1, 1, 0, 0, *one])
         wp.synchronize_device(dev)
         return _time.perf_counter() - start
 
@@ -118,7 +118,7 @@ class Renderer:
         accum_sq = wp.zeros(n, dtype=float, device=dev)
         ray_count = wp.zeros(n, dtype=int, device=dev)
         overflow = wp.zeros(n, dtype=int, device=dev)
-        params = render_params(self.scene, int(spp), int(seed))
+        params = render_params(self.scene, int(spp), int(seed), self.built.features)
         self.compile()
 
         tiles = _tiles(width, height, tile_size) if dev.is_cpu else [(0, 0, width, height)]

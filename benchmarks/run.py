@@ -1,0 +1,382 @@
+"""warprt benchmarks: speed against accuracy, throughput, scaling and compile cost.
+
+    python -m benchmarks.run            # everything (several minutes on 2 cores)
+    python -m benchmarks.run --quick    # smaller sizes, for a smoke run
+    python -m benchmarks.run --only error,growth
+
+Writes under docs/benchmarks/ (or --out): results.json, results.csv (one row per measurement),
+and charts (PNG, needs matplotlib: the ``charts`` extra). Timings are wall-clock medians on the
+machine it runs on; ratios are taken within one run, since a shared machine is noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+os.environ.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
+
+import numpy as np  # noqa: E402
+
+import warprt  # noqa: E402
+from warprt import Features  # noqa: E402
+from warprt.render import default_workers  # noqa: E402
+
+SAMPLERS = ("regular", "independent", "stratified", "sobol")
+
+
+def median_time(fn, repeat: int = 3) -> float:
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+# --- scenes ----------------------------------------------------------------------------------------
+
+
+def soft_shadow_scene(size: int) -> warprt.Scene:
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0, 2.2, 2.6), look_at=(0, 0.2, 0), fov=45, width=size, height=size),
+        shapes=(warprt.Plane(material="m"), warprt.Sphere(center=(0, 0.5, 0), radius=0.4, material="m"),
+                warprt.Rectangle(corner=(-1.2, 0.9, -0.2), edge1=(0, 0, 0.4), edge2=(0.6, 0, 0), material="m")),
+        materials={"m": warprt.Material(kd=0.8, ka=0.0)},
+        lights=(warprt.RectLight(corner=(-0.7, 2.2, -0.7), edge1=(1.4, 0, 0), edge2=(0, 0, 1.4), radiance=2.0),))
+
+
+def dof_scene(size: int) -> warprt.Scene:
+    shapes = tuple(warprt.Sphere(center=(-1.2 + 0.6 * k, 0.3, -1.0 * k), radius=0.3, material=f"m{k % 3}")
+                   for k in range(5)) + (warprt.Plane(material="floor"),)
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0, 0.8, 3), look_at=(0, 0.3, 0), fov=40, width=size, height=size,
+                             aperture=0.12, focus_distance=3.0),
+        shapes=shapes,
+        materials={"m0": warprt.Material(kd=(0.8, 0.2, 0.2), ks=0.5, p=60), "m1": warprt.Material(kd=(0.2, 0.7, 0.3)),
+                   "m2": warprt.Material(kd=(0.2, 0.3, 0.8), ks=0.3), "floor": warprt.Material(kd=0.6)},
+        lights=(warprt.PointLight(position=(2, 4, 3), intensity=0.9),), ambient=0.1, background=(0.5, 0.6, 0.8))
+
+
+def edge_scene(size: int) -> warprt.Scene:
+    stripes = tuple(warprt.Rectangle(corner=(-20, 0, -0.5 - k * 0.5), edge1=(0, 0, 0.12), edge2=(40, 0, 0),
+                                     material="white") for k in range(60))
+    return warprt.Scene(camera=warprt.Camera(eye=(0, 1.0, 1.0), look_at=(0, 0, -4), fov=50, width=size, height=size),
+                        shapes=stripes, materials={"white": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0)
+
+
+def glossy_scene(size: int) -> warprt.Scene:
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0, 1.2, 3), look_at=(0, 0.4, 0), fov=40, width=size, height=size),
+        shapes=(warprt.Plane(material="gloss"), warprt.Sphere(center=(0, 0.5, 0), radius=0.5, material="red")),
+        materials={"gloss": warprt.Material(kd=0.2, mirror=0.6, glossy_exponent=60),
+                   "red": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40)},
+        lights=(warprt.PointLight(position=(2, 3, 2), intensity=0.8),), ambient=0.05, background=(0.5, 0.6, 0.8))
+
+
+def plain_scene(size: int) -> warprt.Scene:
+    shapes = tuple(warprt.Sphere(center=(-1.5 + 0.75 * k, 0.35, -0.3 * k), radius=0.35, material="m")
+                   for k in range(5)) + (warprt.Plane(material="floor"),)
+    return warprt.Scene(camera=warprt.Camera(eye=(0, 1.2, 4), look_at=(0, 0.3, 0), width=size, height=size * 3 // 4),
+                        shapes=shapes, materials={"m": warprt.Material(kd=(0.7, 0.4, 0.2), ks=0.3, p=30),
+                                                  "floor": warprt.Material(kd=0.7)},
+                        lights=(warprt.PointLight(position=(2, 4, 3), intensity=0.7),
+                                warprt.PointLight(position=(-3, 3, 2), intensity=0.4)), ambient=0.08)
+
+
+EFFECT_SCENES = {"soft_shadows": soft_shadow_scene, "depth_of_field": dof_scene, "antialiasing": edge_scene,
+                 "glossy": glossy_scene}
+
+
+# --- measurements --------------------------------------------------------------------------------
+
+
+def bench_error_vs_time(rows, charts, quick: bool):
+    size = 24 if quick else 48
+    spps = [1, 4, 16, 64] if quick else [1, 2, 4, 8, 16, 32, 64, 128, 256]
+    ref_spp = 1024 if quick else 8192
+    curves = {}
+    for effect, make in EFFECT_SCENES.items():
+        scene = make(size)
+        reference = warprt.Renderer(scene.with_settings(sampler="sobol")).render(spp=ref_spp, seed=12345,
+                                                                                progress=False).image
+        denom = float(np.mean(reference.astype(np.float64) ** 2)) + 1e-12
+        for sampler in SAMPLERS:
+            renderer = warprt.Renderer(scene.with_settings(sampler=sampler))
+            renderer.compile()
+            pts = []
+            for spp in spps:
+                errs, walls = [], []
+                for seed in range(1 if sampler == "regular" else 3):
+                    res = renderer.render(spp=spp, seed=seed, progress=False)
+                    errs.append(float(np.mean((res.image.astype(np.float64) - reference) ** 2)) / denom)
+                    walls.append(res.wall_time)
+                rel_mse, wall = float(np.mean(errs)), float(np.median(walls))
+                pts.append((spp, wall, rel_mse))
+                rows.append({"benchmark": "error_vs_time", "scene": effect, "sampler": sampler, "spp": spp,
+                             "seconds": wall, "rel_mse": rel_mse})
+            curves[(effect, sampler)] = pts
+        print(f"  error vs time: {effect} done", flush=True)
+    # equal-error time ratios: time independent needs for its error at the top spp, vs stratified/sobol
+    ratios = {}
+    for effect in EFFECT_SCENES:
+        target = curves[(effect, "independent")][-1][2]
+        t_ind = curves[(effect, "independent")][-1][1]
+        for sampler in ("stratified", "sobol"):
+            t_s = _time_to_error(curves[(effect, sampler)], target)
+            ratios[f"{effect}/{sampler}"] = t_ind / t_s if t_s else float("nan")
+            rows.append({"benchmark": "equal_error_speedup", "scene": effect, "sampler": sampler,
+                         "value": ratios[f"{effect}/{sampler}"]})
+    charts["error_vs_time"] = curves
+    return ratios
+
+
+def _time_to_error(points, target):
+    """Wall time at which a curve reaches ``target`` error (log-log interpolation)."""
+    for (s0, t0, e0), (s1, t1, e1) in zip(points, points[1:]):
+        if e1 <= target <= e0 and e0 > e1 > 0:
+            f = (math.log(e0) - math.log(target)) / (math.log(e0) - math.log(e1))
+            return math.exp(math.log(max(t0, 1e-9)) + f * (math.log(max(t1, 1e-9)) - math.log(max(t0, 1e-9))))
+    if points and points[0][2] <= target:
+        return points[0][1]
+    return None
+
+
+def bench_throughput(rows, quick: bool):
+    scene = warprt.load_scene(ROOT / "scenes" / "showcase.toml")
+    if quick:
+        scene = scene.with_camera(width=160, height=90)
+    out = {}
+    renderer = warprt.Renderer(scene)
+    renderer.compile()
+    spp = 4 if quick else 8
+    for workers in sorted({1, default_workers()}):
+        results = [renderer.render(spp=spp, workers=workers, progress=False) for _ in range(3)]
+        res = sorted(results, key=lambda r: r.wall_time)[1]
+        px = scene.camera.width * scene.camera.height * spp
+        out[workers] = {"seconds": res.wall_time, "mrays_per_s": res.mrays_per_s,
+                        "mpixel_samples_per_s": px / res.wall_time / 1e6, "rays": res.rays}
+        rows.append({"benchmark": "throughput", "scene": "showcase", "workers": workers, "spp": spp,
+                     "seconds": res.wall_time, "mrays_per_s": res.mrays_per_s,
+                     "mpixel_samples_per_s": px / res.wall_time / 1e6})
+    if len(out) > 1:
+        out["speedup"] = out[1]["seconds"] / out[max(k for k in out if isinstance(k, int))]["seconds"]
+    # primary + shadow rays per core on the plain scene
+    plain = warprt.Renderer(plain_scene(160 if quick else 320))
+    plain.compile()
+    res = sorted((plain.render(spp=4, workers=1, progress=False) for _ in range(3)), key=lambda r: r.wall_time)[1]
+    out["plain_primary_shadow_mrays_per_s_per_core"] = res.mrays_per_s
+    rows.append({"benchmark": "throughput", "scene": "plain", "workers": 1, "spp": 4, "seconds": res.wall_time,
+                 "mrays_per_s": res.mrays_per_s})
+    return out
+
+
+def bench_specialisation(rows, quick: bool):
+    scene = plain_scene(160 if quick else 320)
+    spec = warprt.Renderer(scene)
+    full = warprt.Renderer(scene, features=Features.full())
+    spec.compile()
+    full.compile()
+    spp = 2 if quick else 4
+    t_spec, t_full = [], []
+    for _ in range(5):  # interleaved, so drift in machine load hits both alike
+        t_spec.append(spec.render(spp=spp, progress=False).wall_time)
+        t_full.append(full.render(spp=spp, progress=False).wall_time)
+    ratio = statistics.median(t_full) / statistics.median(t_spec)
+    rows.append({"benchmark": "specialisation", "scene": "plain", "seconds_specialised": statistics.median(t_spec),
+                 "seconds_full": statistics.median(t_full), "value": ratio})
+    return {"specialised_s": statistics.median(t_spec), "full_s": statistics.median(t_full), "full_over_specialised": ratio}
+
+
+def _icosphere(subdivisions: int):
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def bench_growth(rows, charts, quick: bool):
+    size = 96 if quick else 192
+    tri_levels = [5, 6, 7] if quick else [5, 6, 7, 8]  # 20k, 82k, 328k, 1.3M triangles
+    tris = []
+    for level in tri_levels:
+        v, f = _icosphere(level)
+        # a bumpy sphere, so rays see many triangles at grazing angles too
+        v = v * (1.0 + 0.05 * np.sin(7 * v[:, :1]) * np.cos(5 * v[:, 1:2]))
+        scene = warprt.Scene(camera=warprt.Camera(eye=(0, 0.5, 3.2), look_at=(0, 0, 0), width=size, height=size),
+                             shapes=(warprt.Mesh(vertices=v, faces=f, material="m"), warprt.Plane(point=(0, -1.1, 0))),
+                             materials={"m": warprt.Material(kd=0.7, ks=0.3)},
+                             lights=(warprt.PointLight(position=(2, 3, 3)),), ambient=0.1)
+        start = time.perf_counter()
+        r = warprt.Renderer(scene)
+        build = time.perf_counter() - start
+        r.compile()
+        res = sorted((r.render(spp=2, progress=False) for _ in range(3)), key=lambda x: x.wall_time)[1]
+        tris.append((len(f), build, res.wall_time, res.mrays_per_s))
+        rows.append({"benchmark": "triangles", "count": len(f), "build_seconds": build, "seconds": res.wall_time,
+                     "mrays_per_s": res.mrays_per_s})
+    print("  triangle growth done", flush=True)
+    spheres = []
+    rng = np.random.default_rng(0)
+    for n in [1, 10, 100, 1000, 10000]:
+        c = rng.uniform(-3, 3, (n, 3))
+        c[:, 1] = rng.uniform(0.1, 3, n)
+        r = rng.uniform(0.05, 0.3, n) * (10.0 / max(n, 10)) ** (1 / 3)
+        shapes = tuple(warprt.Sphere(center=tuple(ci), radius=float(ri)) for ci, ri in zip(c, r)) + (warprt.Plane(),)
+        scene = warprt.Scene(camera=warprt.Camera(eye=(0, 2, 9), look_at=(0, 1, 0), width=size, height=size),
+                             shapes=shapes, lights=(warprt.PointLight(position=(3, 6, 4)),), ambient=0.1)
+        rr = warprt.Renderer(scene)
+        rr.compile()
+        res = sorted((rr.render(spp=2, progress=False) for _ in range(3)), key=lambda x: x.wall_time)[1]
+        spheres.append((n, res.wall_time, res.mrays_per_s))
+        rows.append({"benchmark": "spheres", "count": n, "seconds": res.wall_time, "mrays_per_s": res.mrays_per_s})
+    print("  sphere growth done", flush=True)
+    charts["growth"] = (tris, spheres)
+    return {"triangles": tris, "spheres": spheres}
+
+
+_COMPILE_SNIPPET = r"""
+import json, sys, time
+t0 = time.perf_counter()
+import warprt
+from warprt import Features
+t_import = time.perf_counter() - t0
+scene = warprt.load_scene(sys.argv[1]).with_camera(width=64, height=36)
+out = {"import_s": t_import}
+for name, feats in (("specialised", None), ("full", Features.full())):
+    r = warprt.Renderer(scene, device="cpu", features=feats)
+    out[name + "_key"] = r.features.key
+    out[name + "_compile_s"] = r.compile()
+t1 = time.perf_counter()
+warprt.Renderer(warprt.load_scene(sys.argv[2]).with_camera(width=64, height=48), device="cpu").render(spp=1, progress=False)
+out["plain_first_image_s"] = time.perf_counter() - t1
+out["process_s"] = time.perf_counter() - t0
+print(json.dumps(out))
+"""
+
+
+def bench_compile(rows):
+    """Cold-cache compile per kernel variant, in a fresh process with an empty kernel cache."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, WARP_CACHE_PATH=cache)
+        start = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET, str(ROOT / "scenes" / "showcase.toml"),
+                               str(ROOT / "scenes" / "diffuse.toml")],
+                              env=env, capture_output=True, text=True, check=True)
+        wall = time.perf_counter() - start
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    out["wall_s"] = wall
+    for k, v in out.items():
+        if k.endswith("_s"):
+            rows.append({"benchmark": "compile_cold", "what": k, "seconds": v})
+    return out
+
+
+def test_suite_variants():
+    path = ROOT / ".cache" / "test-kernel-variants.json"
+    if path.exists():
+        return json.loads(path.read_text())
+    return None
+
+
+# --- charts --------------------------------------------------------------------------------------
+
+
+def write_charts(charts, out: Path) -> list[str]:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib missing: no charts (install the 'charts' extra)")
+        return []
+    written = []
+    if "error_vs_time" in charts:
+        curves = charts["error_vs_time"]
+        effects = sorted({e for e, _ in curves})
+        fig, axes = plt.subplots(1, len(effects), figsize=(4.2 * len(effects), 3.8))
+        for ax, effect in zip(np.atleast_1d(axes), effects):
+            for sampler in SAMPLERS:
+                pts = curves.get((effect, sampler))
+                if pts:
+                    ax.loglog([p[1] for p in pts], [p[2] for p in pts], "o-", ms=3, label=sampler)
+            ax.set_title(effect.replace("_", " "))
+            ax.set_xlabel("wall time (s)")
+            ax.grid(True, which="both", alpha=0.3)
+        np.atleast_1d(axes)[0].set_ylabel("relative MSE vs converged reference")
+        np.atleast_1d(axes)[0].legend()
+        fig.tight_layout()
+        fig.savefig(out / "error_vs_time.png", dpi=90)
+        plt.close(fig)
+        written.append("error_vs_time.png")
+    if "growth" in charts:
+        tris, spheres = charts["growth"]
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+        axes[0].semilogx([t[0] for t in tris], [t[2] for t in tris], "o-", label="render")
+        axes[0].semilogx([t[0] for t in tris], [t[1] for t in tris], "s--", label="build (BVH)")
+        axes[0].set_xlabel("triangles")
+        axes[0].set_ylabel("seconds per frame")
+        axes[0].legend()
+        axes[1].semilogx([s[0] for s in spheres], [s[1] for s in spheres], "o-")
+        axes[1].set_xlabel("spheres")
+        for ax in axes:
+            ax.grid(True, which="both", alpha=0.3)
+            ax.set_ylim(bottom=0)
+        fig.tight_layout()
+        fig.savefig(out / "growth.png", dpi=90)
+        plt.close(fig)
+        written.append("growth.png")
+    return written
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", default=str(ROOT / "docs" / "benchmarks"))
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--only", default="compile,throughput,specialisation,growth,error")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    only = set(args.only.split(","))
+    rows: list[dict] = []
+    charts: dict = {}
+    results: dict = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                                 "workers": default_workers(), "python": platform.python_version()},
+                     "quick": args.quick}
+    steps = [("compile", lambda: bench_compile(rows)),
+             ("throughput", lambda: bench_throughput(rows, args.quick)),
+             ("specialisation", lambda: bench_specialisation(rows, args.quick)),
+             ("growth", lambda: bench_growth(rows, charts, args.quick)),
+             ("error", lambda: bench_error_vs_time(rows, charts, args.quick))]
+    for name, step in steps:
+        if name in only:
+            print(f"[{name}]", flush=True)
+            start = time.perf_counter()
+            results[name] = step()
+            print(f"  {json.dumps(results[name], default=str)[:600]}\n  ({time.perf_counter() - start:.1f} s)", flush=True)
+    results["test_suite_kernel_variants"] = test_suite_variants()
+    results["charts"] = write_charts(charts, out)
+    (out / "results.json").write_text(json.dumps(results, indent=2, default=str))
+    keys = sorted({k for r in rows for k in r})
+    with open(out / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {out / 'results.json'}, {out / 'results.csv'} and {len(results['charts'])} charts")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
