@@ -14,16 +14,17 @@ from .build import Features
 from .errors import RenderError, SceneError
 from .image import read_exr, save_image
 from .query import camera_rays, trace_rays
+from . import animation
 from .render import Renderer, RenderResult, render
 from .scene import (
-    Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings, Scene,
+    Animation, Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings, Scene,
     Sphere, SphereLight, Transform, load_scene, parse_scene, scene_from_string,
 )
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Camera", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
+    "Animation", "Camera", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
     "SphereLight", "Transform", "load_scene", "parse_scene", "read_exr", "render", "save_image",
     "scene_from_string", "camera_rays", "trace_rays",

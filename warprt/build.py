@@ -23,7 +23,6 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
-from . import _warp
 from .errors import SceneError
 from .sampling import SAMPLER_IDS
 from .scene.description import (
@@ -31,7 +30,6 @@ from .scene.description import (
     Transform, _validate_arrays,
 )
 
-_warp.init()
 
 # shape kinds, as reported by ray queries and id AOVs
 KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
@@ -279,9 +277,12 @@ def vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 class DeviceScene:
     """A scene's tables on one device. Keeps every ``wp.Mesh`` alive while its id is in use."""
 
-    def __init__(self, scene: Scene, device: "wp.context.Device"):
+    def __init__(self, scene: Scene, device: "wp.context.Device", assets: dict | None = None):
         self.scene = scene
         self.device = device
+        # mesh assets by key: (wp.Mesh, vertex normals); a previous DeviceScene's assets can be
+        # passed in so that re-posed or re-lit frames never rebuild a BVH
+        self.assets: dict[tuple, tuple] = dict(assets or {})
         try:
             self._build()
         except SceneError as e:
@@ -306,6 +307,7 @@ class DeviceScene:
         normals: list[np.ndarray] = []
         nrm_offsets: list[int] = []
         n_normals = 0
+        self.instance_assets: list[tuple] = []  # asset key of each mesh instance
         shape_ids: list[tuple[int, int]] = []  # (kind, index in its table) for each scene shape
         features = dict(meshes=False, area_lights=False, secondary=False, refraction=False,
                         glossy=False, lens=scene.camera.aperture > 0.0, motion=scene.camera.moves)
@@ -333,18 +335,23 @@ class DeviceScene:
                 elif isinstance(s, Mesh):
                     key = _asset_key(s)
                     if key not in asset_ids:
-                        v, f = _read_mesh_file(s.file) if s.file is not None else (s.vertices, s.faces)
-                        v32, f32 = prepare_mesh(v, f, s.degenerate)
+                        if key not in self.assets:
+                            v, f = _read_mesh_file(s.file) if s.file is not None else (s.vertices, s.faces)
+                            v32, f32 = prepare_mesh(v, f, s.degenerate)
+                            mesh = wp.Mesh(points=wp.array(v32, dtype=wp.vec3, device=dev),
+                                           indices=wp.array(f32.reshape(-1), dtype=wp.int32, device=dev))
+                            self.assets[key] = (mesh, vertex_normals(v32, f32))
+                        mesh, vn = self.assets[key]
                         asset_ids[key] = len(self.meshes)
-                        self.meshes.append(wp.Mesh(points=wp.array(v32, dtype=wp.vec3, device=dev),
-                                                   indices=wp.array(f32.reshape(-1), dtype=wp.int32, device=dev)))
-                        normals.append(vertex_normals(v32, f32))
+                        self.meshes.append(mesh)
+                        normals.append(vn)
                         nrm_offsets.append(n_normals)
-                        n_normals += len(v32)
+                        n_normals += len(vn)
                     a = asset_ids[key]
                     t0 = s.transform or Transform()
                     t1 = s.transform_end or t0
                     shape_ids.append((KIND_MESH, len(ins)))
+                    self.instance_assets.append(key)
                     ins.append((self.meshes[a].id, t0, t1, mi, int(s.smooth), nrm_offsets[a]))
                     features["meshes"] = True
                     features["motion"] |= s.moves
@@ -362,7 +369,9 @@ class DeviceScene:
             elif isinstance(light, DiskLight):
                 alights.append((LIGHT_DISK, len(dsk), light.radiance, light.samples))
                 dsk.append((light.center, _unit(light.normal), light.radius, emitter_material(light.radiance)))
+        self.normal_offsets = dict(zip(asset_ids, nrm_offsets))
         features["area_lights"] = bool(alights)
+        self.area_lights = alights  # (light kind, row in its shape table, radiance, samples)
         plights = [l for l in scene.lights if isinstance(l, PointLight)]
 
         used = {s.material for s in scene.shapes}
@@ -405,6 +414,31 @@ class DeviceScene:
         self.data = d
         self.camera = camera_data(scene)
 
+
+    def set_mesh_points(self, shape_index: int, points) -> None:
+        """Move the vertices of the mesh asset behind ``scene.shapes[shape_index]`` (every
+        instance of that asset follows) and refit its BVH; smooth normals are recomputed."""
+        from .animation import as_points
+
+        kind, row = self.shape_ids[shape_index]
+        if kind != KIND_MESH:
+            raise SceneError(f"shape {shape_index} is not a mesh", f"shapes[{shape_index}]")
+        key = self.instance_assets[row]
+        mesh, _ = self.assets[key]
+        p = as_points(points, mesh.points.shape[0], self.device)
+        if isinstance(p, wp.array):
+            wp.copy(mesh.points, p)
+        else:
+            mesh.points.assign(p)
+        mesh.refit()
+        if any(isinstance(s, Mesh) and s.smooth for s in self.scene.shapes):
+            faces = mesh.indices.numpy().reshape(-1, 3)
+            vn = vertex_normals(mesh.points.numpy(), faces)
+            self.assets[key] = (mesh, vn)
+            off = self.normal_offsets[key]
+            all_n = self.data.normals.numpy()
+            all_n[off:off + len(vn)] = vn
+            self.data.normals.assign(all_n)
 
     def _sphere_bvh(self, d: SceneData, sph: list) -> None:
         """From SPHERE_BVH_MIN spheres on, a wp.Bvh over their bounds (swept over the motion)."""

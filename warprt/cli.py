@@ -61,7 +61,44 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=_positive_int, help="CPU worker threads (default: one per core)")
     r.add_argument("--time-budget", type=_positive_float, help="stop after this many seconds of rendering")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.add_argument("--aovs", type=_aov_list, default=[],
+                   help="extra EXR layers, comma separated: depth,z,normal,albedo,position,object_id,material,motion")
+    q = sub.add_parser("render-sequence", help="render the frames of an animated scene to numbered images")
+    q.add_argument("scene", help="scene file (TOML) with an [animation] table and keyframes")
+    q.add_argument("-o", "--output", required=True,
+                   help="output pattern, e.g. out/frame_####.png (#### becomes the frame number)")
+    q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP")
+    q.add_argument("--spp", type=_positive_int, help="samples per pixel (default: the scene's)")
+    q.add_argument("--seed", type=int, default=0, help="random seed; frame f uses seed + f")
+    q.add_argument("--width", type=_positive_int, help="image width in pixels")
+    q.add_argument("--height", type=_positive_int, help="image height in pixels")
+    q.add_argument("--device", help="Warp device")
+    q.add_argument("--executor", choices=["local", "thread", "process", "ray"], default="local",
+                   help="where frames render (default: local, one after another)")
+    q.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
+
+
+def _aov_list(text: str) -> list[str]:
+    from .aov import AOV_NAMES
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    bad = [n for n in names if n not in AOV_NAMES]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown AOV(s) {', '.join(bad)}; choose from {', '.join(AOV_NAMES)}")
+    return names
+
+
+def _frame_range(text: str) -> range:
+    try:
+        parts = [int(p) for p in text.split(":")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected N, A:B or A:B:STEP, got {text!r}") from None
+    if len(parts) == 1:
+        return range(parts[0], parts[0] + 1)
+    if len(parts) in (2, 3) and all(p >= 0 for p in parts) and (len(parts) == 2 or parts[2] > 0):
+        return range(*parts)
+    raise argparse.ArgumentTypeError(f"expected N, A:B or A:B:STEP with non-negative numbers, got {text!r}")
 
 
 def _render(args: argparse.Namespace) -> int:
@@ -87,13 +124,14 @@ def _render(args: argparse.Namespace) -> int:
     renderer = Renderer(scene, device=args.device)
     compile_s = renderer.compile()
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
-                             progress=not args.no_progress)
+                             progress=not args.no_progress, aovs=args.aovs or None)
     meta = {"warprt_spp": result.spp, "warprt_seed": args.seed, "warprt_interrupted": int(result.interrupted)}
+    image = {"color": result.image, **result.aovs} if result.aovs else result.image
     for out in args.output:
         folder = os.path.dirname(out)
         if folder:
             os.makedirs(folder, exist_ok=True)
-        save_image(result.image, out, metadata=meta)
+        save_image(image, out, metadata=meta)
     total = time.perf_counter() - start
     h, w = result.image.shape[:2]
     note = " (interrupted)" if result.interrupted else ""
@@ -102,6 +140,42 @@ def _render(args: argparse.Namespace) -> int:
     print(f"{', '.join(args.output)}: {w}x{h}, {result.spp} spp{note}, render {result.wall_time:.2f} s "
           f"(total {total:.2f} s, kernel load {compile_s:.2f} s), {result.rays / 1e6:.2f} Mrays, "
           f"{result.mrays_per_s:.2f} Mrays/s on {result.device}")
+    return 130 if result.interrupted else 0
+
+
+def _render_sequence(args: argparse.Namespace) -> int:
+    from .animation import frame_path, render_sequence
+    from .batch import render_frames
+    from .image import FORMATS, save_image
+    from .scene.loader import load_scene
+
+    ext = os.path.splitext(args.output)[1].lower()
+    if ext not in FORMATS:
+        raise RenderError(f"{args.output}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    scene = load_scene(args.scene)
+    cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
+    if cam:
+        try:
+            scene = scene.with_camera(**cam)
+        except SceneError as e:
+            raise e.within(source=args.scene) from None
+    frames = list(args.frames) if args.frames is not None else list(range(scene.animation.frames))
+    start = time.perf_counter()
+    if args.executor == "local":
+        paths = render_sequence(scene, output=args.output, frames=frames, spp=args.spp, seed=args.seed,
+                                device=args.device, progress=not args.no_progress)
+    else:
+        images = render_frames(scene, frames=frames, spp=args.spp, seed=args.seed, executor=args.executor,
+                               device=args.device)
+        paths = []
+        for f, image in zip(frames, images):
+            path = frame_path(args.output, f)
+            if os.path.dirname(path):
+                os.makedirs(os.path.dirname(path), exist_ok=True)
+            save_image(image, path, metadata={"warprt_frame": f})
+            paths.append(path)
+    total = time.perf_counter() - start
+    print(f"{len(paths)} frames ({paths[0]} ... {paths[-1]}) in {total:.2f} s, {total / len(paths):.2f} s per frame")
     return 0
 
 
@@ -110,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "render":
             return _render(args)
+        if args.command == "render-sequence":
+            return _render_sequence(args)
     except (SceneError, RenderError) as e:
         print(f"warprt: error: {e}", file=sys.stderr)
         return 2

@@ -60,11 +60,22 @@ def _atomic_write(path: str, write) -> None:
 
 
 def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None) -> None:
-    """Write ``image`` (H, W, 3 linear float) to ``path``; the format follows the extension."""
+    """Write ``image`` (H, W, 3 linear float) to ``path``; the format follows the extension.
+
+    ``image`` may also be a dict of layers: ``{"color": rgb, "depth": ..., "normal": ...}`` (as
+    returned by ``render(..., aovs=[...])``). An EXR then holds every layer, each channel named
+    ``layer.X`` / ``layer.Y`` / ``layer.Z`` (or ``layer.V`` for one channel); a PNG holds the colour.
+    """
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    layers = None
+    if isinstance(image, Mapping):
+        if "color" not in image:
+            raise RenderError(f"{path}: a dict of layers needs a 'color' entry, got {sorted(image)}")
+        layers = {k: v for k, v in image.items() if k != "color"}
+        image = image["color"]
     a = _check_image(image)
     if ext == ".png":
         from PIL import Image
@@ -72,7 +83,17 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
         rgb8 = linear_to_srgb8(a[:, :, :3])
         _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG"))
         return
-    write_exr(path, {"RGB": a[:, :, :3]}, metadata)
+    channels = {"RGB": a[:, :, :3]}
+    for name, data in (layers or {}).items():
+        d = np.asarray(data)
+        if d.shape[:2] != a.shape[:2]:
+            raise RenderError(f"{path}: layer {name!r} has shape {d.shape}, the colour {a.shape}")
+        if d.ndim == 2:
+            channels[f"{name}.V"] = d
+        else:
+            for k in range(d.shape[2]):
+                channels[f"{name}.{'XYZW'[k]}"] = d[:, :, k]
+    write_exr(path, channels, metadata)
 
 
 def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str, object] | None = None) -> None:
@@ -95,15 +116,26 @@ def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str
     _atomic_write(path, write)
 
 
-def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
-    """Read an EXR written by warprt: the RGB image (H, W, 3) float32 and the header."""
+def read_exr(path: str | os.PathLike, layers: bool = False):
+    """Read an EXR written by warprt: the RGB image (H, W, 3) float32 and the header; with
+    ``layers=True`` also a dict of the other layers (``{"depth": (H, W), "normal": (H, W, 3)...}``)."""
     import OpenEXR
 
-    with OpenEXR.File(os.fspath(path)) as f:
+    with OpenEXR.File(os.fspath(path), separate_channels=True) as f:
         header = dict(f.header())
-        ch = f.channels()
-        if "RGB" in ch:
-            rgb = np.asarray(ch["RGB"].pixels, dtype=np.float32)
+        ch = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], axis=-1)
+    if not layers:
+        return rgb, header
+    grouped: dict[str, dict[str, np.ndarray]] = {}
+    for name, data in ch.items():
+        if "." in name:
+            layer, comp = name.rsplit(".", 1)
+            grouped.setdefault(layer, {})[comp] = data
+    out = {}
+    for layer, comps in grouped.items():
+        if set(comps) == {"V"}:
+            out[layer] = comps["V"]
         else:
-            rgb = np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
-    return rgb, header
+            out[layer] = np.stack([comps[c] for c in "XYZW" if c in comps], axis=-1)
+    return rgb, header, out

@@ -22,10 +22,10 @@ Code for features a scene does not use is removed at compile time with ``wp.stat
 from __future__ import annotations
 
 import threading
+from types import SimpleNamespace
 
 import warp as wp
 
-from . import _warp
 from .build import (
     KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE, LIGHT_RECT, LIGHT_SPHERE, CameraData,
     Features, RenderParams, SceneData,
@@ -37,7 +37,6 @@ from .geometry import (
 from .sampling import frame_from_z, hash2, sample_2d, square_to_cone, square_to_cos_power, square_to_disk
 from .shading import blinn_phong, fresnel, reflect, refract
 
-_warp.init()
 
 STACK_SIZE = 16
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2
@@ -169,6 +168,11 @@ def _make_kernels(F: Features):
             o_obj = wp.cw_div(wp.quat_rotate_inv(rot, start - pos), scl)
             d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
             q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj, d_obj, best - t_min)
+            if q.result and q.t <= 0.0:
+                # a hit exactly at t_min is outside the open range (t_min, t_max): look beyond it
+                step = spawn_offset(max_abs(o_obj)) / wp.length(d_obj)
+                q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj + d_obj * step, d_obj, best - t_min - step)
+                q.t = q.t + step
             if q.result:
                 if q.t + t_min < best:
                     best = q.t + t_min
@@ -652,15 +656,17 @@ def _make_kernels(F: Features):
         ray_count[pixel] = ray_count[pixel] + rays
         overflow[pixel] = overflow[pixel] + dropped
 
-    return render_kernel, closest_hit
+    return SimpleNamespace(render=render_kernel, closest_hit=closest_hit, sphere_center=sphere_center,
+                           instance_pos=instance_pose_pos, instance_rot=instance_pose_rot,
+                           instance_scl=instance_pose_scl)
 
 
-_cache: dict[Features, object] = {}
+_cache: dict[Features, SimpleNamespace] = {}
 _cache_lock = threading.Lock()
 
 
-def kernels_for(features: Features):
-    """(render kernel, closest_hit func) for a feature set, built once per process."""
+def kernels_for(features: Features) -> SimpleNamespace:
+    """The render kernel and its device functions for a feature set, built once per process."""
     with _cache_lock:
         if features not in _cache:
             _cache[features] = _make_kernels(features)

@@ -32,7 +32,8 @@ def _query_kernels():
     with _lock:
         if _kernels:
             return _kernels["camera"], _kernels["trace"]
-        _, closest_hit = kernels_for(Features.full())
+        fns = kernels_for(Features.full())
+        closest_hit = fns.closest_hit
 
         @wp.kernel(module="warprt_query", enable_backward=False)
         def camera_kernel(cam: CameraData, fx: wp.array(dtype=float), fy: wp.array(dtype=float),
@@ -66,7 +67,18 @@ def _query_kernels():
             i, s = wp.tid()
             out[i, s] = sample_2d(sampler, seed, pixels[i], s, spp, dim)
 
+        @wp.kernel(module="warprt_query", enable_backward=False)
+        def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
+            i = wp.tid()
+            c = accum[i] * inv_spp
+            y = i / width
+            x = i - y * width
+            out[y, x, 0] = c[0]
+            out[y, x, 1] = c[1]
+            out[y, x, 2] = c[2]
+
         _kernels["camera"], _kernels["trace"], _kernels["samples"] = camera_kernel, trace_kernel, samples_kernel
+        _kernels["image"] = image_kernel
         return camera_kernel, trace_kernel
 
 
@@ -161,3 +173,12 @@ def pixel_samples(sampler: str, pixels, spp: int, dim: int = 0, seed: int = 0, c
               inputs=[SAMPLER_IDS[sampler], wp.uint32(seed & 0xFFFFFFFF), wp.array(pix, dtype=int, device=dev),
                       int(spp), wp.uint32(dim & 0xFFFFFFFF), out])
     return out.numpy()
+
+
+def device_image(accum: "wp.array", spp: int, width: int, height: int) -> "wp.array":
+    """The mean of an accumulation buffer as a (height, width, 3) float32 ``wp.array`` on its device."""
+    _query_kernels()
+    out = wp.zeros((height, width, 3), dtype=float, device=accum.device)
+    wp.launch(_kernels["image"], dim=width * height, device=accum.device,
+              inputs=[accum, 1.0 / float(spp), width, out])
+    return out

@@ -20,21 +20,23 @@ import os
 import sys
 import threading
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
 from . import _warp
+from .aov import compute_aovs
 from .build import DeviceScene, Features, render_params
 from .errors import RenderError
 from .integrator import kernels_for
+from .query import device_image
 from .scene.description import Scene
 
 
 @dataclass
 class RenderResult:
-    image: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top
+    image: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top (a wp.array with as_warp)
     spp: int  # samples per pixel in the image
     wall_time: float  # seconds spent in the passes (excludes build and compile)
     rays: int  # camera, secondary and shadow rays traced
@@ -43,6 +45,7 @@ class RenderResult:
     device: str
     interrupted: bool = False  # stopped by Ctrl-C
     relative_error: float | None = None  # estimated relative standard error of the mean
+    aovs: dict = field(default_factory=dict)  # requested AOVs (see warprt.aov), from pixel-centre rays
 
     @property
     def mrays_per_s(self) -> float:
@@ -75,7 +78,35 @@ class Renderer:
         self.scene = scene
         self.built = DeviceScene(scene, self.device)
         self.features = self.built.features if features is None else self.built.features.union(features)
-        self.kernel, self.closest_hit = kernels_for(self.features)
+        self.kernel = kernels_for(self.features).render
+
+    def update(self, scene: Scene) -> None:
+        """Switch to a changed scene (moved objects, new materials, lights or camera...) without
+        rebuilding mesh BVHs: assets are reused by file or content. The compiled kernel is kept
+        while the new scene needs no feature it lacks (else the wider kernel is used)."""
+        if not isinstance(scene, Scene):
+            raise RenderError(f"update() needs a warprt.Scene, got {type(scene).__name__}")
+        self.built = DeviceScene(scene, self.device, assets=self.built.assets)
+        self.scene = scene
+        needed = self.built.features
+        if needed.union(self.features) != self.features:
+            self.features = self.features.union(needed)
+            self.kernel = kernels_for(self.features).render
+
+    def set_camera(self, camera) -> None:
+        """Replace the camera (same or different resolution); no rebuild of anything else."""
+        from .build import camera_data
+
+        self.scene = self.scene.replace(camera=camera)
+        self.built.scene = self.scene
+        self.built.camera = camera_data(self.scene)
+        if camera.moves and not self.features.motion or camera.aperture > 0 and not self.features.lens:
+            self.update(self.scene)
+
+    def set_mesh_points(self, shape_index: int, points) -> None:
+        """New vertex positions (numpy (N, 3) or a ``wp.array`` of vec3 on this device, e.g. from
+        a Warp simulation) for a mesh; its BVH is refitted, not rebuilt."""
+        self.built.set_mesh_points(shape_index, points)
 
     def compile(self) -> float:
         """Load the kernel on this device, compiling it when Warp's cache lacks it; returns seconds.
@@ -93,7 +124,14 @@ class Renderer:
 
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
                tile_size: int = 16, pass_spp: int | None = None, time_budget: float | None = None,
-               target_error: float | None = None, progress: bool | None = None) -> RenderResult:
+               target_error: float | None = None, progress: bool | None = None,
+               aovs=None, as_warp: bool = False) -> RenderResult:
+        """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
+        passes, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
+        (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``object_id``, ``material``,
+        ``motion``) returned in ``RenderResult.aovs``. With ``as_warp=True`` the image stays on the
+        device: ``RenderResult.image`` is a (H, W, 3) float32 ``wp.array`` (DLPack-ready for torch
+        or JAX), with no copy to the host."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
@@ -107,6 +145,9 @@ class Renderer:
             raise RenderError(f"target_error must be positive, got {target_error!r}")
         if pass_spp is not None and (not isinstance(pass_spp, (int, np.integer)) or pass_spp < 1):
             raise RenderError(f"pass_spp must be a positive integer, got {pass_spp!r}")
+        if isinstance(aovs, str):
+            aovs = [aovs]
+        aov_maps = compute_aovs(self.built, aovs) if aovs else {}
         workers = default_workers() if workers is None else workers
         if not isinstance(workers, (int, np.integer)) or workers < 1:
             raise RenderError(f"workers must be a positive integer, got {workers!r}")
@@ -199,10 +240,13 @@ class Renderer:
         wall = _time.perf_counter() - start
         if target_error is not None and rel_err is None and done >= 2:
             rel_err = _relative_error(accum, accum_sq, done)
-        image = (accum.numpy() / np.float32(done)).reshape(height, width, 3).astype(np.float32)
+        if as_warp:
+            image = device_image(accum, done, width, height)
+        else:
+            image = (accum.numpy() * np.float32(1.0 / done)).reshape(height, width, 3)  # as device_image does
         return RenderResult(image=image, spp=done, wall_time=wall, rays=int(ray_count.numpy().sum(dtype=np.int64)),
                             stack_overflows=int(overflow.numpy().sum(dtype=np.int64)), features=self.features,
-                            device=str(dev), interrupted=interrupted, relative_error=rel_err)
+                            device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
 
     @staticmethod
     def _next_pass(done: int, elapsed: float, pass_spp: int | None, time_budget: float | None) -> int:
@@ -222,12 +266,17 @@ def _relative_error(accum: wp.array, accum_sq: wp.array, n: int) -> float:
     return math.sqrt(float(var.mean()) / n) / mean if mean > 0 else 0.0
 
 
-def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | None = None, **options) -> np.ndarray:
+def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | None = None, **options):
     """Render ``scene`` and return linear radiance as a float32 (H, W, 3) array, row 0 at the top.
+
+    With ``aovs=[...]`` the result is a dict: ``{"color": image, "depth": ..., ...}``.
 
     ``spp`` defaults to the scene's ``render.spp``; ``seed`` picks the noise (the same seed gives
     the same image bit for bit). Further options (``workers``, ``tile_size``, ``time_budget``,
     ``target_error``, ``progress``...) are those of :meth:`Renderer.render`; use
     :class:`Renderer` directly for the statistics (:class:`RenderResult`).
     """
-    return Renderer(scene, device=device).render(spp=spp, seed=seed, **options).image
+    result = Renderer(scene, device=device).render(spp=spp, seed=seed, **options)
+    if options.get("aovs"):
+        return {"color": result.image, **result.aovs}
+    return result.image

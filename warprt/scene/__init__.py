@@ -1,13 +1,13 @@
 """Scene descriptions: dataclasses (Python API) and the TOML loader that builds the same objects."""
 
 from .description import (
-    Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
+    Animation, Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
     Scene, Sphere, SphereLight, Transform,
 )
 from .loader import load_scene, parse_scene, scene_from_string
 
 __all__ = [
-    "Camera", "Disk", "DiskLight", "Material", "Mesh", "Plane", "PointLight", "Rectangle", "RectLight",
+    "Animation", "Camera", "Disk", "DiskLight", "Material", "Mesh", "Plane", "PointLight", "Rectangle", "RectLight",
     "RenderSettings", "Scene", "Sphere", "SphereLight", "Transform", "load_scene", "parse_scene",
     "scene_from_string",
 ]

@@ -197,6 +197,56 @@ def as_transform(x: Any, name: str) -> Transform | None:
     raise SceneError(f"expected a table with translate/rotate/scale, got {x!r}", name)
 
 
+# --- keyframes ---------------------------------------------------------------------------------
+
+
+def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
+    """Keyframes: a list of tables, each with ``time`` (seconds, strictly increasing) and some of
+    ``allowed`` (vectors; ``scale`` may be one number). Values missing from a key are taken
+    from the object's own fields."""
+    if x is None or (isinstance(x, (list, tuple)) and len(x) == 0):
+        return ()
+    if not isinstance(x, (list, tuple)):
+        raise SceneError(f"expected a list of tables with time and {', '.join(allowed)}, got {x!r}", name)
+    out, last = [], -math.inf
+    for i, key in enumerate(x):
+        where = f"{name}[{i}]"
+        if not isinstance(key, Mapping):
+            raise SceneError(f"expected a table, got {key!r}", where)
+        unknown = sorted(set(key) - {"time", *allowed})
+        if unknown:
+            raise SceneError(f"unknown field(s) {', '.join(unknown)}; expected time and some of: {', '.join(allowed)}",
+                             where)
+        if "time" not in key:
+            raise SceneError("every keyframe needs a time", f"{where}.time")
+        t = as_float(key["time"], f"{where}.time")
+        if t <= last:
+            raise SceneError(f"keyframe times must increase, got {t:g} after {last:g}", f"{where}.time")
+        last = t
+        k = {"time": t}
+        for f in allowed:
+            if f in key:
+                v = key[f]
+                if f == "scale" and isinstance(v, (int, float)) and not isinstance(v, bool):
+                    v = (v, v, v)
+                k[f] = as_vec3(v, f"{where}.{f}")
+        out.append(k)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class Animation:
+    """Frames of an animated scene: frame f shows time f / fps (seconds); keyframed objects take
+    their pose at that time, and at time (f + 1) / fps as their motion-blur end pose."""
+
+    frames: int = 1
+    fps: float = 24.0
+
+    def __post_init__(self):
+        _set(self, "frames", as_int(self.frames, "frames", minimum=1, maximum=1 << 20))
+        _set(self, "fps", as_float(self.fps, "fps", minimum=0.0, strict_min=True))
+
+
 # --- camera --------------------------------------------------------------------------------
 
 
@@ -221,6 +271,7 @@ class Camera:
     shutter: tuple[float, float] = (0.0, 1.0)  # open and close times
     eye_end: Vec3 | None = None  # eye at time 1 (camera motion)
     look_at_end: Vec3 | None = None  # look_at at time 1
+    keyframes: tuple = ()  # animation: [{time, eye, look_at}, ...]
 
     def __post_init__(self):
         _set(self, "eye", as_vec3(self.eye, "eye"))
@@ -247,6 +298,7 @@ class Camera:
             _set(self, "eye_end", as_vec3(self.eye_end, "eye_end"))
         if self.look_at_end is not None:
             _set(self, "look_at_end", as_vec3(self.look_at_end, "look_at_end"))
+        _set(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("eye", "look_at")))
         for t in (0.0, 1.0):
             self.basis(t)  # raises when the view is degenerate
 
@@ -361,8 +413,10 @@ class Sphere:
     material: str = DEFAULT_MATERIAL
     center_end: Vec3 | None = None  # centre at time 1 (motion blur)
     transform: Transform | None = None  # applied to the centre (translate, rotate, uniform scale)
+    keyframes: tuple = ()  # animation: [{time, center}, ...]
 
     def __post_init__(self):
+        _set(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("center",)))
         _set(self, "center", as_vec3(self.center, "center"))
         _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
         _check_material(self)
@@ -458,8 +512,10 @@ class Mesh:
     transform_end: Transform | None = None  # instance transform at time 1 (motion blur)
     smooth: bool = False
     degenerate: str = "error"  # "error" or "drop": what to do with zero-area faces
+    keyframes: tuple = ()  # animation: [{time, translate, rotate, scale}, ...] (instance transform)
 
     def __post_init__(self):
+        _set(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("translate", "rotate", "scale")))
         if (self.file is None) == (self.vertices is None):
             raise SceneError("give either file or vertices (with faces)", "file")
         if self.file is not None and (not isinstance(self.file, str) or not self.file):
@@ -504,9 +560,9 @@ def _validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]
     if f_in.size and not np.issubdtype(f_in.dtype, np.integer):
         if not np.issubdtype(f_in.dtype, np.floating) or not np.all(np.mod(f_in, 1) == 0):
             raise SceneError("faces must be integer vertex indices", "faces")
-    f = f_in.astype(np.int64).reshape(-1, 3) if f_in.size else np.zeros((0, 3), np.int64)
     if f_in.size and (f_in.ndim != 2 or f_in.shape[1] != 3):
         raise SceneError(f"faces must have shape (M, 3) (triangles), got {f_in.shape}", "faces")
+    f = f_in.astype(np.int64).reshape(-1, 3) if f_in.size else np.zeros((0, 3), np.int64)
     if len(f) == 0:
         raise SceneError("the mesh has no faces", "faces")
     if f.min() < 0 or f.max() >= len(v):
@@ -632,6 +688,7 @@ class Scene:
     ambient: RGB = (0.0, 0.0, 0.0)  # Ia, scene ambient intensity
     background: RGB = (0.0, 0.0, 0.0)  # radiance of rays that hit nothing
     render: RenderSettings = field(default_factory=RenderSettings)
+    animation: Animation = field(default_factory=Animation)
     source: str | None = None  # the scene file, for messages and relative mesh paths
 
     def __post_init__(self):
@@ -641,7 +698,7 @@ class Scene:
             raise e.within(source=self.source) from None
 
     def _validate(self) -> None:
-        for name, cls in (("camera", Camera), ("render", RenderSettings)):
+        for name, cls in (("camera", Camera), ("render", RenderSettings), ("animation", Animation)):
             if not isinstance(getattr(self, name), cls):
                 raise SceneError(f"expected a {cls.__name__}, got {type(getattr(self, name)).__name__}", name)
         _set(self, "shapes", tuple(self.shapes))

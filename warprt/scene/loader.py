@@ -28,13 +28,13 @@ from typing import Any, Mapping
 
 from ..errors import SceneError
 from .description import (
-    Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
+    Animation, Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
     Scene, Sphere, SphereLight,
 )
 
 SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
 LIGHT_TYPES = {"point": PointLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
-TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights"}
+TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights", "animation"}
 WORLD_FIELDS = {"ambient", "background"}
 
 
@@ -61,7 +61,7 @@ def _typed_list(items: Any, kinds: dict[str, type], where: str, base_dir: str) -
         if not isinstance(item, Mapping):
             raise SceneError(f"expected a table, got {item!r}", loc)
         kind = item.get("type")
-        if kind not in kinds:
+        if not isinstance(kind, str) or kind not in kinds:
             raise SceneError(f"type must be one of {', '.join(repr(k) for k in kinds)}, got {kind!r}", f"{loc}.type")
         item = dict(item)
         if kind == "mesh" and kinds is SHAPE_TYPES and isinstance(item.get("file"), str):
@@ -83,6 +83,7 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
                              unknown[0])
         camera = _make(Camera, data.get("camera", {}), "camera")
         render = _make(RenderSettings, data.get("render", {}), "render")
+        animation = _make(Animation, data.get("animation", {}), "animation")
         world = data.get("world", {})
         if not isinstance(world, Mapping):
             raise SceneError("expected a table", "world")
@@ -98,7 +99,7 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
         kwargs = {k: world[k] for k in WORLD_FIELDS if k in world}
         try:
             return Scene(camera=camera, shapes=tuple(shapes), materials=materials, lights=tuple(lights),
-                         render=render, source=source, **kwargs)
+                         render=render, animation=animation, source=source, **kwargs)
         except SceneError as e:
             raise (e if e.field and e.field.split(".")[0].split("[")[0] in TOP_LEVEL else e.within("world")) from None
     except SceneError as e:
@@ -116,8 +117,23 @@ def load_scene(path: str | os.PathLike) -> Scene:
     except IsADirectoryError:
         raise SceneError("is a directory, not a scene file", source=path) from None
     except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"not valid TOML: {e}", source=path) from None
+        raise SceneError(f"not valid TOML: {_with_line(e, path)}", source=path) from None
     return parse_scene(data, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def _with_line(error: Exception, path: str | None = None, text: str | None = None) -> str:
+    """tomllib's message, with the line number added where it says only "end of document"."""
+    msg = str(error)
+    if "line" in msg:
+        return msg
+    try:
+        if text is None and path is not None:
+            with open(path, encoding="utf-8", errors="replace") as f:
+                text = f.read()
+        n = max(1, (text or "").rstrip("\n").count("\n") + 1)
+    except OSError:
+        return msg
+    return f"{msg} (line {n}, the last)"
 
 
 def scene_from_string(text: str, base_dir: str = ".", source: str = "<string>") -> Scene:
@@ -125,5 +141,5 @@ def scene_from_string(text: str, base_dir: str = ".", source: str = "<string>") 
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"not valid TOML: {e}", source=source) from None
+        raise SceneError(f"not valid TOML: {_with_line(e, text=text)}", source=source) from None
     return parse_scene(data, source=source, base_dir=base_dir)
