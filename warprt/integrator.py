@@ -393,10 +393,22 @@ def _make_kernels(F: Features):
         return T
 
     @wp.func
+    def shadow(scene: SceneData, origin: wp.vec3, target: wp.vec3, stop_short: float, time: float) -> wp.vec3:
+        """Transmittance from ``origin`` to ``target``, ending ``stop_short`` before the target
+        (so the light's own surface never occludes it)."""
+        to_t = target - origin
+        dist = wp.length(to_t)
+        if dist <= stop_short:
+            return wp.vec3(1.0, 1.0, 1.0)
+        return transmittance(scene, origin, to_t / dist, dist - stop_short, time)
+
+    @wp.func
     def area_lights_direct(scene: SceneData, params: RenderParams, pixel: int, sample: int, key: wp.uint32,
-                           origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3,
+                           p: wp.vec3, origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3,
                            p_exp: float, time: float) -> wp.vec4:
-        """Direct light from the area lights: ``samples`` stratified shadow rays per light (rgb, rays in w)."""
+        """Direct light from the area lights: ``samples`` stratified shadow rays per light (rgb, rays in w).
+        Directions, distances and densities are taken from the surface point p; the shadow rays
+        start from ``origin``, p moved off the surface."""
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for j in range(scene.n_alights):
@@ -416,17 +428,18 @@ def _make_kernels(F: Features):
                 if kind == LIGHT_SPHERE:
                     c = scene.spheres[idx].c0
                     r = scene.spheres[idx].r
-                    to_c = c - origin
+                    to_c = c - p
                     dc = wp.length(to_c)
                     if dc <= r or r <= 0.0:
                         continue
                     s = r / dc
                     omc = s * s / (1.0 + wp.sqrt(wp.max(0.0, 1.0 - s * s)))  # 1 - cos θmax
                     l = frame_from_z(to_c / dc, square_to_cone(u, omc))
-                    t = intersect_sphere(origin, l, c, r, 0.0, 3.0e38)
+                    t = intersect_sphere(p, l, c, r, 0.0, 3.0e38)
                     if t < 0.0:
                         t = wp.dot(to_c, l)  # grazing the silhouette: use the tangent point
                     dist = t
+                    y = p + l * t
                     inv_pdf = 2.0 * wp.pi * omc
                     y_mag = max_abs(c) + r
                 else:
@@ -446,7 +459,7 @@ def _make_kernels(F: Features):
                         y = scene.disks[idx].c + frame_from_z(ln, wp.vec3(dsk[0], dsk[1], 0.0))
                         area = wp.pi * r * r
                         y_mag = max_abs(scene.disks[idx].c) + r
-                    to_y = y - origin
+                    to_y = y - p
                     dist = wp.length(to_y)
                     if dist <= 0.0 or area <= 0.0:
                         continue
@@ -461,7 +474,7 @@ def _make_kernels(F: Features):
                 if wp.max(f) <= 0.0:
                     continue
                 rays += 1
-                T = transmittance(scene, origin, l, dist - 2.0 * spawn_offset(y_mag), time)
+                T = shadow(scene, origin, y, 2.0 * spawn_offset(y_mag), time)
                 if wp.max(T) <= 0.0:
                     continue
                 acc += wp.cw_mul(T, f) * (inv_pdf / wp.pi)
@@ -484,7 +497,7 @@ def _make_kernels(F: Features):
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for i in range(scene.n_plights):
-            to_light = scene.plights[i].pos - origin
+            to_light = scene.plights[i].pos - h.p  # shading uses the surface point itself
             dist = wp.length(to_light)
             if dist <= 0.0:
                 continue
@@ -495,7 +508,7 @@ def _make_kernels(F: Features):
             if wp.max(f) <= 0.0:
                 continue
             rays += 1
-            T = transmittance(scene, origin, l, dist - spawn_offset(max_abs(scene.plights[i].pos)), time)
+            T = shadow(scene, origin, scene.plights[i].pos, spawn_offset(max_abs(scene.plights[i].pos)), time)
             if wp.max(T) <= 0.0:
                 continue
             I = scene.plights[i].intensity
@@ -504,7 +517,7 @@ def _make_kernels(F: Features):
             L += wp.cw_mul(T, wp.cw_mul(I, f))
         if wp.static(F.area_lights):
             if scene.n_alights > 0:
-                al = area_lights_direct(scene, params, pixel, sample, key, origin, ng, n, v, kd, ks, p_exp, time)
+                al = area_lights_direct(scene, params, pixel, sample, key, h.p, origin, ng, n, v, kd, ks, p_exp, time)
                 L += wp.vec3(al[0], al[1], al[2])
                 rays += int(al[3])
         return wp.vec4(L[0], L[1], L[2], float(rays))

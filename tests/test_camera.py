@@ -1,0 +1,174 @@
+"""Camera rays against the lecture's witness-point formula, computed independently in numpy.
+
+For raster point (x, y) (pixels, y down from the top) the witness point is
+s = eye + us·u + vs·v - D·w with w = normalize(eye - look_at), u = normalize(up × w), v = w × u,
+top = D·tan(fov/2), right = top·W/H, us = -right + 2·right·x/W, vs = top - 2·top·y/H; the pinhole
+ray runs from the eye through s. A thin lens of radius a starts the ray on the lens disk
+eye + a·(lx·u + ly·v) and aims it at the point where the pinhole ray meets the plane of focus.
+
+Tolerances: directions are float32 unit vectors, compared with a float64 reference to 2e-6 per
+component (a few float32 ulps); origins to 1e-6 relative to the scene's coordinates.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import warprt
+
+DIR_TOL = 2e-6
+
+
+def frame(eye, look_at, up):
+    eye, look_at, up = (np.asarray(a, np.float64) for a in (eye, look_at, up))
+    w = eye - look_at
+    w /= np.linalg.norm(w)
+    u = np.cross(up, w)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    return u, v, w
+
+
+def witness(eye, look_at, up, fov, width, height, dist, points):
+    """Witness points (N, 3) for raster points (N, 2), float64."""
+    u, v, w = frame(eye, look_at, up)
+    top = dist * math.tan(math.radians(fov) / 2.0)
+    right = top * width / height
+    x, y = points[:, 0:1].astype(np.float64), points[:, 1:2].astype(np.float64)
+    us = -right + 2.0 * right * x / width
+    vs = top - 2.0 * top * y / height
+    return np.asarray(eye, np.float64) + us * u + vs * v - dist * w
+
+
+def pixel_centres(width, height):
+    """Row-major (i + 0.5, j + 0.5), row j = 0 at the top: independent of warprt."""
+    pts = [(i + 0.5, j + 0.5) for j in range(height) for i in range(width)]
+    return np.array(pts, np.float64)
+
+
+def unit(a):
+    return a / np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+CAMERAS = [
+    # eye, look_at, up, fov, width, height
+    ((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 45.0, 7, 5),
+    ((3.0, -2.0, 1.5), (-1.0, 0.5, 2.0), (0.2, 0.3, 1.0), 70.0, 5, 9),
+    ((-4.0, 6.0, -3.0), (2.0, -1.0, 0.5), (1.0, 1.0, 0.0), 20.0, 13, 3),
+    ((100.0, 50.0, -20.0), (101.0, 49.0, -19.5), (0.0, 0.0, 1.0), 120.0, 4, 4),
+]
+
+
+@pytest.mark.parametrize("eye, look_at, up, fov, width, height", CAMERAS)
+def test_pixel_centre_rays_follow_the_witness_point_formula(eye, look_at, up, fov, width, height):
+    scene = warprt.Scene(camera=warprt.Camera(eye=eye, look_at=look_at, up=up, fov=fov, width=width, height=height))
+    o, d = warprt.camera_rays(scene)
+    assert o.shape == d.shape == (width * height, 3)
+    s = witness(eye, look_at, up, fov, width, height, 1.0, pixel_centres(width, height))
+    expected = unit(s - np.asarray(eye))
+    np.testing.assert_allclose(o, np.broadcast_to(eye, o.shape), rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(d, expected, rtol=0, atol=DIR_TOL)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("dist", [0.01, 1.0, 3.7, 250.0])
+def test_image_plane_distance_does_not_change_directions(dist):
+    eye, look_at, up, fov, width, height = CAMERAS[1]
+    cam = warprt.Camera(eye=eye, look_at=look_at, up=up, fov=fov, width=width, height=height, distance=dist)
+    _, d = warprt.camera_rays(warprt.Scene(camera=cam))
+    s = witness(eye, look_at, up, fov, width, height, dist, pixel_centres(width, height))
+    np.testing.assert_allclose(d, unit(s - np.asarray(eye)), atol=DIR_TOL)
+    # and the same as for D = 1
+    s1 = witness(eye, look_at, up, fov, width, height, 1.0, pixel_centres(width, height))
+    np.testing.assert_allclose(d, unit(s1 - np.asarray(eye)), atol=DIR_TOL)
+
+
+def test_row_zero_is_the_top_and_column_zero_the_left():
+    """Looking down -z with up = +y: u = +x, v = +y. Pixel (0, 0) looks up-left, the last pixel
+    down-right; the centre of an odd image looks straight ahead."""
+    w, h = 5, 3
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 0, 0), look_at=(0, 0, -1), fov=60, width=w, height=h))
+    _, d = warprt.camera_rays(scene)
+    d = d.reshape(h, w, 3)
+    assert d[0, 0, 0] < 0 and d[0, 0, 1] > 0
+    assert d[-1, -1, 0] > 0 and d[-1, -1, 1] < 0
+    np.testing.assert_allclose(d[1, 2], [0, 0, -1], atol=1e-7)
+    # x grows with the column, y falls with the row
+    assert np.all(np.diff(d[:, :, 0], axis=1) > 0)
+    assert np.all(np.diff(d[:, :, 1], axis=0) < 0)
+    # the top-left corner point (0, 0) of the raster lies at (-right, top, -1)
+    top = math.tan(math.radians(30.0))
+    _, c = warprt.camera_rays(scene, points=[[0.0, 0.0], [w, h]])
+    np.testing.assert_allclose(c[0], unit(np.array([-top * w / h, top, -1.0])), atol=DIR_TOL)
+    np.testing.assert_allclose(c[1], unit(np.array([top * w / h, -top, -1.0])), atol=DIR_TOL)
+
+
+def test_pixel_centres_use_half_pixel_offsets():
+    """The default rays equal the rays through explicit points (i + 0.5, j + 0.5), and differ from
+    rays through the pixel corners (i, j)."""
+    cam = warprt.Camera(eye=(1, 2, 3), look_at=(0, 0, 0), width=6, height=4, fov=50)
+    scene = warprt.Scene(camera=cam)
+    _, d = warprt.camera_rays(scene)
+    jj, ii = np.mgrid[0:4, 0:6]
+    _, d_centres = warprt.camera_rays(scene, points=np.stack([ii.ravel() + 0.5, jj.ravel() + 0.5], 1))
+    _, d_corners = warprt.camera_rays(scene, points=np.stack([ii.ravel(), jj.ravel()], 1).astype(float))
+    np.testing.assert_array_equal(d, d_centres)
+    assert np.abs(d - d_corners).max() > 1e-2
+
+
+def test_arbitrary_raster_points_match_the_formula():
+    eye, look_at, up, fov, width, height = CAMERAS[2]
+    cam = warprt.Camera(eye=eye, look_at=look_at, up=up, fov=fov, width=width, height=height, distance=2.5)
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([-2.0, -1.0], [width + 2.0, height + 1.0], (200, 2)).astype(np.float32)
+    _, d = warprt.camera_rays(warprt.Scene(camera=cam), points=pts)
+    s = witness(eye, look_at, up, fov, width, height, 2.5, pts.astype(np.float64))
+    np.testing.assert_allclose(d, unit(s - np.asarray(eye)), atol=DIR_TOL)
+
+
+@pytest.mark.parametrize("aperture, focus", [(0.25, None), (0.05, 12.0), (1.5, 0.8)])
+def test_thin_lens_rays_meet_at_one_focus_point(aperture, focus):
+    eye, look_at, up = (2.0, 1.0, 6.0), (0.0, 0.5, 0.0), (0.0, 1.0, 0.0)
+    width, height, fov = 8, 6, 40.0
+    cam = warprt.Camera(eye=eye, look_at=look_at, up=up, fov=fov, width=width, height=height,
+                        aperture=aperture, focus_distance=focus, distance=1.7)
+    scene = warprt.Scene(camera=cam)
+    f = focus if focus is not None else float(np.linalg.norm(np.subtract(look_at, eye)))
+    u, v, w = frame(eye, look_at, up)
+    rng = np.random.default_rng(11)
+    for px in [(0.5, 0.5), (3.5, 2.5), (7.5, 5.5), (1.25, 4.75)]:
+        n = 64
+        pts = np.tile(np.array(px, np.float32), (n, 1))
+        lens = rng.uniform(0, 1, (n, 2)).astype(np.float32)
+        o, d = warprt.camera_rays(scene, points=pts, lens=lens)
+        # the focus point: where the pinhole ray through the witness point meets the plane of focus
+        s = witness(eye, look_at, up, fov, width, height, 1.7, np.array([px], np.float64))[0]
+        pin = s - np.asarray(eye)
+        focus_point = np.asarray(eye) + pin * (f / 1.7)
+        # origins lie on the lens disk: in the (u, v) plane through the eye, within the aperture
+        rel = o.astype(np.float64) - np.asarray(eye)
+        np.testing.assert_allclose(rel @ w, 0.0, atol=1e-5)
+        radius = np.hypot(rel @ u, rel @ v)
+        assert radius.max() <= aperture * (1 + 1e-5)
+        assert radius.max() > 0.3 * aperture  # the samples really spread over the lens
+        # every ray passes through the focus point: distance from the point to the line
+        to_fp = focus_point - o
+        along = np.sum(to_fp * d, axis=1)
+        assert np.all(along > 0)
+        miss = np.linalg.norm(to_fp - along[:, None] * d, axis=1)
+        assert miss.max() < 2e-5 * max(1.0, np.linalg.norm(focus_point))
+        # and the plane of focus is at distance f along -w from the eye
+        np.testing.assert_allclose((focus_point - np.asarray(eye)) @ (-w), f, rtol=1e-9)
+
+
+def test_zero_aperture_ignores_the_lens_samples():
+    cam = warprt.Camera(eye=(0, 1, 4), look_at=(0, 0, 0), width=4, height=4)
+    scene = warprt.Scene(camera=cam)
+    o0, d0 = warprt.camera_rays(scene)
+    rng = np.random.default_rng(0)
+    o1, d1 = warprt.camera_rays(scene, lens=rng.uniform(0, 1, (16, 2)))
+    np.testing.assert_array_equal(o0, o1)
+    np.testing.assert_array_equal(d0, d1)
