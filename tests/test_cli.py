@@ -1,0 +1,279 @@
+"""The command line: ``warprt render SCENE -o OUT ...``, in-process through ``warprt.cli.main`` and
+as a real ``python -m warprt`` subprocess."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import warprt
+from warprt.cli import main
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+SCENE = """\
+# a small plain diffuse scene: one sphere on a plane, one point light
+[camera]
+eye = [0, 1, 4]
+look_at = [0, 0.5, 0]
+width = 24
+height = 16
+
+[render]
+spp = 2
+
+[world]
+ambient = 0.05
+
+[[shapes]]
+type = "plane"
+
+[[shapes]]
+type = "sphere"
+center = [0, 0.5, 0]
+radius = 0.5
+
+[[lights]]
+type = "point"
+position = [2, 3, 2]
+"""
+
+LAST_LINE = re.compile(
+    r"^(?P<outs>.+): (?P<w>\d+)x(?P<h>\d+), (?P<spp>\d+) spp, render (?P<wall>\d+\.\d+) s "
+    r"\(total \d+\.\d+ s, kernel load \d+\.\d+ s\), \d+\.\d+ Mrays, (?P<mrays>\d+\.\d+) Mrays/s on \S+$")
+
+
+@pytest.fixture
+def scene_file(tmp_path) -> pathlib.Path:
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE)
+    return path
+
+
+def run(argv, capsys) -> tuple[int, str, str]:
+    """main(argv) in this process: (exit code, stdout, stderr); argparse errors exit through SystemExit."""
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def render_ok(argv, capsys) -> re.Match:
+    code, out, err = run([*argv, "--no-progress"], capsys)
+    assert code == 0, err
+    last = out.strip().splitlines()[-1]
+    m = LAST_LINE.match(last)
+    assert m, last
+    return m
+
+
+# --- success -----------------------------------------------------------------------------------------
+
+
+def test_png_and_exr_written_with_the_scene_size(scene_file, tmp_path, capsys):
+    png, exr = tmp_path / "out.png", tmp_path / "out.exr"
+    m = render_ok(["render", str(scene_file), "-o", str(png), "-o", str(exr)], capsys)
+    with Image.open(png) as im:
+        assert im.format == "PNG" and im.size == (24, 16) and im.mode == "RGB"
+    rgb, header = warprt.read_exr(exr)
+    assert rgb.shape == (16, 24, 3) and rgb.dtype == np.float32
+    assert (m["w"], m["h"], m["spp"]) == ("24", "16", "2")
+    assert m["outs"] == f"{png}, {exr}"
+    assert float(m["wall"]) >= 0 and float(m["mrays"]) > 0
+    assert header["warprt_spp"] == 2 and header["warprt_seed"] == 0 and header["warprt_interrupted"] == 0
+    # the PNG is the sRGB encoding of the same image
+    assert np.array_equal(np.asarray(Image.open(png)), warprt.image.linear_to_srgb8(rgb))
+
+
+def test_exr_holds_the_linear_float_image_that_render_returns(scene_file, tmp_path, capsys):
+    exr = tmp_path / "out.exr"
+    render_ok(["render", str(scene_file), "-o", str(exr)], capsys)
+    rgb, _ = warprt.read_exr(exr)
+    expected = warprt.render(warprt.load_scene(scene_file), progress=False)
+    np.testing.assert_array_equal(rgb, expected)
+    assert rgb.max() > 0 and 0 < np.count_nonzero(rgb) < rgb.size  # lit pixels and a black sky
+
+
+@pytest.mark.parametrize("args, camera, settings, spp, seed", [
+    (["--width", "10", "--height", "6"], dict(width=10, height=6), {}, None, 0),
+    (["--spp", "3"], {}, {}, 3, 0),
+    (["--seed", "42"], {}, {}, None, 42),
+    (["--sampler", "regular"], {}, dict(sampler="regular"), None, 0),
+    (["--sampler", "independent", "--spp", "1", "--seed", "5", "--width", "9"],
+     dict(width=9), dict(sampler="independent"), 1, 5),
+])
+def test_overrides_match_the_python_api(scene_file, tmp_path, capsys, args, camera, settings, spp, seed):
+    exr = tmp_path / "out.exr"
+    m = render_ok(["render", str(scene_file), "-o", str(exr), *args], capsys)
+    scene = warprt.load_scene(scene_file)
+    if camera:
+        scene = scene.with_camera(**camera)
+    if settings:
+        scene = scene.with_settings(**settings)
+    expected = warprt.render(scene, spp=spp, seed=seed, progress=False)
+    rgb, header = warprt.read_exr(exr)
+    np.testing.assert_array_equal(rgb, expected)
+    assert header["warprt_spp"] == (spp or 2) and header["warprt_seed"] == seed
+    assert int(m["spp"]) == (spp or 2) and (int(m["w"]), int(m["h"])) == (expected.shape[1], expected.shape[0])
+
+
+def test_seed_and_sampler_change_the_noise(scene_file, tmp_path, capsys):
+    images = {}
+    for name, args in {"a": [], "b": ["--seed", "1"], "c": ["--sampler", "regular"]}.items():
+        render_ok(["render", str(scene_file), "-o", str(tmp_path / f"{name}.exr"), *args], capsys)
+        images[name] = warprt.read_exr(tmp_path / f"{name}.exr")[0]
+    assert not np.array_equal(images["a"], images["b"])
+    assert not np.array_equal(images["a"], images["c"])
+
+
+def test_max_depth_override(tmp_path, capsys):
+    """In the mirror scene, depth 0 stops reflections: the mirror sphere shows only its own shading."""
+    exr0, exr = tmp_path / "d0.exr", tmp_path / "d.exr"
+    scene_path = ROOT / "scenes" / "mirror.toml"
+    common = ["render", str(scene_path), "--width", "16", "--height", "12", "--spp", "1"]
+    render_ok([*common, "-o", str(exr0), "--max-depth", "0"], capsys)
+    render_ok([*common, "-o", str(exr)], capsys)
+    scene = warprt.load_scene(scene_path).with_camera(width=16, height=12)
+    np.testing.assert_array_equal(warprt.read_exr(exr0)[0],
+                                  warprt.render(scene.with_settings(max_depth=0), spp=1, progress=False))
+    assert warprt.read_exr(exr)[0].sum() > warprt.read_exr(exr0)[0].sum()
+
+
+def test_output_folder_is_created(scene_file, tmp_path, capsys):
+    out = tmp_path / "new" / "dir" / "out.png"
+    render_ok(["render", str(scene_file), "-o", str(out), "--width", "4", "--height", "4"], capsys)
+    assert Image.open(out).size == (4, 4)
+
+
+# --- failures: exit 2, one line, no output ---------------------------------------------------------------
+
+
+BAD_SCENES = [
+    ('[[shapes]]\ntype = "sphere"\nradius = "big"\n', "shapes[0].radius", "big"),
+    ('[camera]\neye = [1, 2]\n', "camera.eye", "three numbers"),
+    ('[camera]\nwidth = 0\n', "camera.width", ">= 1"),
+    ('[camera]\nfov = 180\n', "camera.fov", "< 180"),
+    ('[materials.red]\ncolour = 1\n', "materials.red", "colour"),
+    ('[[shapes]]\ntype = "sphere"\nmaterial = "gold"\n', "shapes[0].material", "gold"),
+    ('[[lights]]\ntype = "spot"\n', "lights[0].type", "spot"),
+    ('[[shapes]]\ntype = "mesh"\nfile = "missing.obj"\n', "shapes[0].file", "not found"),
+    ('[[shapes]]\ntype = "mesh"\nfile = "nan.obj"\n', "shapes[0].vertices", "NaN"),
+    ('[camera\n', None, "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new", "existing"])
+@pytest.mark.parametrize("text, field, problem", BAD_SCENES, ids=[b[1] or "toml" for b in BAD_SCENES])
+def test_bad_scene_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, text, field, problem, existing):
+    (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    scene = tmp_path / "bad.toml"
+    scene.write_text(text)
+    png, exr = tmp_path / "out.png", tmp_path / "out.exr"
+    if existing:
+        png.write_bytes(b"old png")
+        exr.write_bytes(b"old exr")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, out, err = run(["render", str(scene), "-o", str(png), "-o", str(exr), "--no-progress"], capsys)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"warprt: error: {scene}: ")
+    if field:
+        assert f": {field}: " in lines[0]
+    assert problem in lines[0]
+    assert out == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    if existing:
+        assert png.read_bytes() == b"old png" and exr.read_bytes() == b"old exr"
+
+
+def test_missing_scene_file(tmp_path, capsys):
+    code, _, err = run(["render", str(tmp_path / "nope.toml"), "-o", str(tmp_path / "a.png")], capsys)
+    assert code == 2 and err.strip() == f"warprt: error: {tmp_path / 'nope.toml'}: scene file not found"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--spp", "0"], ["--spp", "positive integer"]),
+    (["--spp", "many"], ["--spp", "many"]),
+    (["--width", "0"], ["--width", "positive integer"]),
+    (["--height", "-3"], ["--height"]),
+    (["--max-depth", "-1"], ["--max-depth", ">= 0"]),
+    (["--sampler", "halton"], ["--sampler", "halton"]),
+    (["--workers", "0"], ["--workers"]),
+    (["--time-budget", "0"], ["--time-budget", "positive"]),
+    (["--seed", "x"], ["--seed"]),
+    (["--colour", "red"], ["--colour"]),
+])
+def test_bad_arguments_exit_2_and_write_nothing(scene_file, tmp_path, capsys, args, words):
+    out = tmp_path / "out.png"
+    out.write_bytes(b"old")
+    code, stdout, err = run(["render", str(scene_file), "-o", str(out), *args], capsys)
+    assert code == 2
+    last = err.strip().splitlines()[-1]
+    assert "error" in last and all(w in last for w in words), last
+    assert out.read_bytes() == b"old" and stdout == ""
+
+
+def test_an_unavailable_device_exits_2(scene_file, tmp_path, capsys):
+    code, _, err = run(["render", str(scene_file), "-o", str(tmp_path / "a.png"), "--device", "tpu"], capsys)
+    assert code == 2 and err.startswith("warprt: error: ") and "tpu" in err
+    assert not (tmp_path / "a.png").exists()
+
+
+@pytest.mark.parametrize("name", ["out.jpg", "out", "out.PNG.txt"])
+def test_unsupported_extension_exits_2_before_rendering(scene_file, tmp_path, capsys, name):
+    good = tmp_path / "good.png"
+    code, out, err = run(["render", str(scene_file), "-o", str(good), "-o", str(tmp_path / name)], capsys)
+    assert code == 2
+    assert err.strip().splitlines() == [err.strip()] and "unsupported image format" in err and name in err
+    assert not good.exists() and not (tmp_path / name).exists()  # checked before anything is written
+    assert out == ""
+
+
+def test_no_output_is_a_usage_error(scene_file, capsys):
+    code, _, err = run(["render", str(scene_file)], capsys)
+    assert code == 2 and "-o" in err
+
+
+# --- a real process ---------------------------------------------------------------------------------------
+
+
+def _subprocess(args, cwd):
+    env = dict(os.environ)
+    env.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
+    # the warprt of this checkout, wherever the process starts
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    return subprocess.run([sys.executable, "-m", "warprt", *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_python_m_warprt_renders(scene_file, tmp_path):
+    p = _subprocess(["render", "scene.toml", "-o", "out/img.png", "-o", "img.exr", "--spp", "1"], tmp_path)
+    assert p.returncode == 0, p.stderr
+    m = LAST_LINE.match(p.stdout.strip().splitlines()[-1])
+    assert m and m["spp"] == "1" and float(m["mrays"]) > 0
+    assert Image.open(tmp_path / "out" / "img.png").size == (24, 16)
+    rgb, header = warprt.read_exr(tmp_path / "img.exr")
+    np.testing.assert_array_equal(rgb, warprt.render(warprt.load_scene(scene_file), spp=1, progress=False))
+
+
+def test_python_m_warprt_reports_a_bad_scene_in_one_line(tmp_path):
+    (tmp_path / "bad.toml").write_text('[[shapes]]\ntype = "sphere"\n[[shapes]]\ntype = "sphere"\nradius = "big"\n')
+    (tmp_path / "out.png").write_bytes(b"old")
+    p = _subprocess(["render", "bad.toml", "-o", "out.png", "--no-progress"], tmp_path)
+    assert p.returncode == 2
+    assert p.stderr.strip().splitlines() == [
+        "warprt: error: bad.toml: shapes[1].radius: expected a number, got 'big'"]
+    assert "Traceback" not in p.stderr and p.stdout == ""
+    assert (tmp_path / "out.png").read_bytes() == b"old"
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["bad.toml", "out.png"]

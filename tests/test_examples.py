@@ -1,0 +1,73 @@
+"""The example scripts run as a user would run them (a fresh Python process), at a small size, and
+the README's quick start names the two set-up commands."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import warprt
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+W, H = 48, 32
+
+
+def run_example(name: str, out_dir: Path, *extra: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ)  # WARP_CACHE_PATH (set by conftest.py) is inherited: kernels are shared
+    proc = subprocess.run([sys.executable, str(EXAMPLES / name), str(out_dir), "--width", str(W), "--height", str(H),
+                           *extra], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"{name} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
+    return proc
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    with Image.open(path) as im:
+        return im.size
+
+
+def test_build_scene_example_writes_png_and_exr(tmp_path):
+    out = tmp_path / "images"  # a folder that does not exist yet: the script creates it
+    proc = run_example("build_scene.py", out, "--spp", "1")
+    assert png_size(out / "build_scene.png") == (W, H)
+    rgb, header = warprt.read_exr(out / "build_scene.exr")
+    assert rgb.shape == (H, W, 3) and rgb.dtype == np.float32
+    assert np.isfinite(rgb).all() and rgb.mean() > 0.0
+    assert "stack overflows: 0" in proc.stdout
+    assert "Mrays/s" in proc.stdout
+
+
+def test_ray_queries_example_writes_depth_images(tmp_path):
+    proc = run_example("ray_queries.py", tmp_path, "--spp", "2")
+    assert png_size(tmp_path / "depth.png") == (W, H)
+    assert png_size(tmp_path / "lidar.png") == (W, H)
+    depth, _ = warprt.read_exr(tmp_path / "depth.exr")
+    assert depth.shape == (H, W, 3)
+    assert (depth > 0).any() and (depth == 0).any()  # the showcase has ground and sky
+    points = np.load(tmp_path / "lidar_points.npy")
+    assert points.ndim == 2 and points.shape[1] == 3 and len(points) > 0
+    assert "depth camera:" in proc.stdout and "lidar:" in proc.stdout
+
+
+def test_readme_quick_start_names_the_two_commands():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    start = readme.index("## Quick start")
+    end = readme.find("\n## ", start + 1)
+    quick = readme[start:end if end > 0 else None]
+    assert "make render" in quick
+    assert "make test" in quick
+
+
+@pytest.mark.parametrize("name", ["build_scene.py", "ray_queries.py"])
+def test_examples_document_their_small_size_flags(name):
+    proc = subprocess.run([sys.executable, str(EXAMPLES / name), "--help"], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0
+    for flag in ("--width", "--height", "--spp"):
+        assert flag in proc.stdout
