@@ -482,13 +482,13 @@ def _make_kernels(F: Features):
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
     @wp.func
-    def direct_light(scene: SceneData, params: RenderParams, pixel: int, sample: int, key: wp.uint32,
-                     h: Hit, ng: wp.vec3, n: wp.vec3, v: wp.vec3, time: float) -> wp.vec4:
-        """Light reaching the viewer from the point lights and area lights (rgb, rays used in w).
+    def direct_light(scene: SceneData, h: Hit, ng: wp.vec3, n: wp.vec3, v: wp.vec3, time: float) -> wp.vec4:
+        """Light reaching the viewer from the point lights (rgb, shadow rays used in w); the area
+        lights are summed by ``area_lights_direct``, where each light sample acts as a point light
+        of lecture intensity Le cosθ' dA / π, so the diffuse term is exactly (kd/π)·E for
+        irradiance E.
 
-        ``ng``/``n`` are the geometric/shading normals turned towards the viewer. Each area light
-        sample acts as a point light of lecture intensity Le cosθ' dA / π, so the diffuse term is
-        exactly (kd/π)·E for irradiance E.
+        ``ng``/``n`` are the geometric/shading normals turned towards the viewer.
         """
         kd = scene.mats[h.mat].kd
         ks = scene.mats[h.mat].ks
@@ -515,11 +515,6 @@ def _make_kernels(F: Features):
             if scene.plights[i].inv_sq != 0:
                 I = I / (dist * dist)
             L += wp.cw_mul(T, wp.cw_mul(I, f))
-        if wp.static(F.area_lights):
-            if scene.n_alights > 0:
-                al = area_lights_direct(scene, params, pixel, sample, key, h.p, origin, ng, n, v, kd, ks, p_exp, time)
-                L += wp.vec3(al[0], al[1], al[2])
-                rays += int(al[3])
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
     @wp.func
@@ -593,9 +588,19 @@ def _make_kernels(F: Features):
                     continue
                 v = -e.d
                 local = wp.cw_mul(scene.mats[h.mat].ka, scene.ambient)
-                dl = direct_light(scene, params, pixel, s, e.key, h, ng, n, v, time)
+                dl = direct_light(scene, h, ng, n, v, time)
                 rays += int(dl[3])
                 local += wp.vec3(dl[0], dl[1], dl[2])
+                if wp.static(F.area_lights):
+                    # called from the kernel, not from direct_light: a scene without area lights
+                    # keeps direct_light small enough for the C++ compiler to inline (see
+                    # docs/architecture.md, "Features and compile cost")
+                    if scene.n_alights > 0:
+                        al = area_lights_direct(scene, params, pixel, s, e.key, h.p,
+                                                spawn_origin(h.p, ng, h.mag, 1.0), ng, n, v, scene.mats[h.mat].kd,
+                                                scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
+                        rays += int(al[3])
+                        local += wp.vec3(al[0], al[1], al[2])
                 L += wp.cw_mul(e.w, local)
 
                 if wp.static(F.secondary):
