@@ -95,8 +95,17 @@ def plain_scene(size: int) -> warprt.Scene:
                                 warprt.PointLight(position=(-3, 3, 2), intensity=0.4)), ambient=0.08)
 
 
+def motion_scene(size: int) -> warprt.Scene:
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0, 1.0, 3.2), look_at=(0, 0.4, 0), fov=40, width=size, height=size, shutter=(0.0, 1.0)),
+        shapes=(warprt.Plane(material="floor"),
+                warprt.Sphere(center=(-0.6, 0.4, 0), center_end=(0.6, 0.6, 0), radius=0.35, material="red")),
+        materials={"floor": warprt.Material(kd=0.7), "red": warprt.Material(kd=(0.8, 0.15, 0.1), ks=0.4, p=50)},
+        lights=(warprt.PointLight(position=(1.5, 3, 2), intensity=0.9),), ambient=0.1, background=(0.5, 0.6, 0.8))
+
+
 EFFECT_SCENES = {"soft_shadows": soft_shadow_scene, "depth_of_field": dof_scene, "antialiasing": edge_scene,
-                 "glossy": glossy_scene}
+                 "glossy": glossy_scene, "motion_blur": motion_scene}
 
 
 # --- measurements --------------------------------------------------------------------------------
@@ -343,6 +352,28 @@ def write_charts(charts, out: Path) -> list[str]:
         fig.savefig(out / "growth.png", dpi=90)
         plt.close(fig)
         written.append("growth.png")
+    if "throughput" in charts or "compile" in charts:
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        tp = charts.get("throughput") or {}
+        workers = sorted(k for k in tp if isinstance(k, int))
+        if workers:
+            axes[0].bar([str(w) for w in workers], [tp[w]["mrays_per_s"] for w in workers], color="tab:blue")
+            axes[0].set_xlabel("worker threads (tiles over a thread pool)")
+            axes[0].set_ylabel("Mrays/s, showcase scene")
+            for i, w in enumerate(workers):
+                axes[0].annotate(f"{tp[w]['mrays_per_s']:.2f}", (i, tp[w]["mrays_per_s"]), ha="center", va="bottom")
+        cp = charts.get("compile") or {}
+        names = [k for k in cp if k.startswith("compile_") and k.endswith("_s")]
+        if names:
+            axes[1].barh([n[len("compile_"):-2] for n in names], [cp[n] for n in names], color="tab:orange")
+            axes[1].set_xlabel("cold compile, seconds (empty kernel cache)")
+            axes[1].invert_yaxis()
+        for ax in axes:
+            ax.grid(True, axis="x" if ax is axes[1] else "y", alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(out / "throughput_compile.png", dpi=90)
+        plt.close(fig)
+        written.append("throughput_compile.png")
     return written
 
 
@@ -370,6 +401,8 @@ def main(argv=None) -> int:
             print(f"[{name}]", flush=True)
             start = time.perf_counter()
             results[name] = step()
+            if name in ("throughput", "compile"):
+                charts[name] = results[name]
             print(f"  {json.dumps(results[name], default=str)[:600]}\n  ({time.perf_counter() - start:.1f} s)", flush=True)
     results["test_suite_kernel_variants"] = test_suite_variants()
     results["charts"] = write_charts(charts, out)

@@ -185,7 +185,7 @@ def _soft_shadow_scene(sampler: str, w: int = 10) -> warprt.Scene:
 def test_convergence_rates_on_soft_shadows():
     """Stratifying the light samples pays where the light dimensions carry the variance. (The
     film x light cross term is not stratified by padding and converges at the Monte Carlo rate;
-    with pixels as wide as the penumbra the slopes flatten towards -0.6, see docs/sampling.md.)"""
+    with pixels as wide as the penumbra the slopes flatten towards -0.6, see docs/effects/soft-shadows.md.)"""
     reference = render(_soft_shadow_scene("sobol"), 16384).image
     spps = [4, 16, 64, 256]
     slopes = {}
@@ -199,29 +199,6 @@ def test_convergence_rates_on_soft_shadows():
     assert -0.6 < slopes["independent"] < -0.4, slopes
     assert slopes["stratified"] < -0.65, slopes
     assert slopes["sobol"] < -0.65, slopes
-
-
-# --- regular sampling aliases ------------------------------------------------------------------
-
-
-def test_regular_sampling_shows_moire_where_stratified_does_not():
-    """Thin stripes receding in perspective: regular samples alias into low-frequency moiré,
-    stratified samples turn the same error into noise. Moiré is error that survives a low-pass
-    filter (4x4 block means), so compare block-averaged errors against a converged reference."""
-    stripes = tuple(warprt.Rectangle(corner=(-20, 0, -0.5 - k * 0.5), edge1=(0, 0, 0.12), edge2=(40, 0, 0),
-                                     material="white") for k in range(60))
-    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 1.0, 1.0), look_at=(0, 0, -4), fov=50, width=32, height=32),
-                         shapes=stripes, materials={"white": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0)
-    reference = render(scene.with_settings(sampler="sobol"), 1024).image[..., 0]
-
-    def block_error(img):
-        d = (img[..., 0] - reference).reshape(8, 4, 8, 4).mean(axis=(1, 3))
-        return float(np.sqrt(np.mean(d ** 2)))
-
-    regular = block_error(render(scene.with_settings(sampler="regular"), 4).image)
-    stratified = np.mean([block_error(render(scene.with_settings(sampler="stratified"), 4, seed=s).image)
-                          for s in range(3)])
-    assert regular > 2.0 * stratified, (regular, stratified)
 
 
 # --- depth of field -----------------------------------------------------------------------------

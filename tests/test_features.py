@@ -32,6 +32,10 @@ def test_plain_scene_needs_no_optional_feature():
     (dict(materials={"floor": warprt.Material(mirror=0.5), "ball": warprt.Material()}), "secondary"),
     (dict(materials={"floor": warprt.Material(), "ball": warprt.Material(transparency=1.0)}), "refraction"),
     (dict(materials={"floor": warprt.Material(mirror=0.5, glossy_exponent=30), "ball": warprt.Material()}), "glossy"),
+    # clear glass without mirror or Fresnel still reflects (total internal reflection), and
+    # those reflections take the glossy lobe: the specialised kernel must include it
+    (dict(materials={"floor": warprt.Material(), "ball": warprt.Material(transparency=1.0, glossy_exponent=20)}),
+     "glossy"),
     (dict(lights=(warprt.SphereLight(),)), "area_lights"),
     (dict(camera=warprt.Camera(aperture=0.1)), "lens"),
     (dict(camera=warprt.Camera(eye_end=(1, 0, 5))), "motion"),

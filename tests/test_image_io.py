@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 
 import numpy as np
 import OpenEXR
@@ -263,3 +264,15 @@ def test_save_image_writes_what_render_returns(tmp_path):
     back, header = read_exr(tmp_path / "r.exr")
     np.testing.assert_array_equal(back, image)
     assert header["warprt_spp"] == 1 and back.max() == np.float32(0.8) * np.float32(0.5)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX file modes")
+@pytest.mark.parametrize("ext", [".png", ".exr"])
+def test_written_images_get_the_permissions_of_a_plain_open(tmp_path, ext):
+    """The atomic write goes through a private temp file; the finished image must not stay
+    0600 but get 0666 less the umask, like any file the user's tools create."""
+    path = tmp_path / ("img" + ext)
+    save_image(np.zeros((2, 3, 3), np.float32), path)
+    probe = tmp_path / "probe"
+    probe.write_bytes(b"")
+    assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(probe.stat().st_mode)

@@ -101,7 +101,8 @@ def intersect_rect(o: wp.vec3, d: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.
     nn = wp.dot(n, n)
     a = wp.dot(wp.cross(rel, e2), n) / nn
     b = wp.dot(wp.cross(e1, rel), n) / nn
-    if a < 0.0 or a > 1.0 or b < 0.0 or b > 1.0:
+    # written to reject NaN: for a tiny rectangle n·n underflows to 0 and a = 0/0
+    if not (a >= 0.0 and a <= 1.0 and b >= 0.0 and b <= 1.0):
         return MISS
     return t
 
@@ -112,8 +113,8 @@ def intersect_disk(o: wp.vec3, d: wp.vec3, c: wp.vec3, n: wp.vec3, r: float, t_m
     if t == MISS:
         return MISS
     rel = o + t * d - c
-    if wp.dot(rel, rel) > r * r:
-        return MISS
+    if r <= 0.0 or not (wp.dot(rel, rel) <= r * r):
+        return MISS  # a zero-radius disk is never hit, like a zero-radius sphere
     return t
 
 

@@ -41,6 +41,15 @@ def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.round(s * 255.0), 0, 255).astype(np.uint8)
 
 
+def _read_umask() -> int:
+    mask = os.umask(0o022)  # reading the umask means setting it: done once, at import
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+
+
 def _atomic_write(path: str, write) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
@@ -48,6 +57,9 @@ def _atomic_write(path: str, write) -> None:
     ext = os.path.splitext(path)[1]
     fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp" + ext, dir=folder)
     os.close(fd)
+    # mkstemp creates the file private (0600); give the finished image the permissions a plain
+    # open() would (0666 less the umask), as users of image files expect
+    os.chmod(tmp, 0o666 & ~_UMASK)
     try:
         write(tmp)
         os.replace(tmp, path)

@@ -34,7 +34,7 @@ from .geometry import (
     MISS, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs, refine_on_plane,
     refine_on_sphere, spawn_offset, spawn_origin, sphere_roots,
 )
-from .sampling import frame_from_z, hash2, sample_2d, square_to_cone, square_to_cos_power, square_to_disk
+from .sampling import frame_from_z, hash2, sample_1d, sample_2d, square_to_cone, square_to_cos_power, square_to_disk
 from .shading import blinn_phong, fresnel, reflect, refract
 
 
@@ -120,6 +120,24 @@ def sanitize(c: wp.vec3, clamp: float) -> wp.vec3:
         x = c[k]
         if not wp.isnan(x):
             out[k] = wp.clamp(x, 0.0, clamp)
+    return out
+
+
+FLT_MAX = 3.4028234663852886e38  # the largest float32
+TIE = 7.62939453125e-06  # 2^-17 (the spawn offset factor): relative band within which an analytic hit beats a mesh hit
+
+
+@wp.func
+def mul_sat(a: wp.vec3, b: wp.vec3) -> wp.vec3:
+    """a·b per component for non-negative colours, never NaN or Inf: a zero (or NaN) factor gives
+    0 even against Inf, and a product beyond the float32 range saturates at FLT_MAX. An
+    overflowing light term times a zero weight (a coloured mirror, a coloured glass's
+    transmittance) is then 0, not a NaN that ``sanitize`` would turn into the loss of every
+    other contribution to that channel of the sample. Bit-identical to ``cw_mul`` otherwise."""
+    out = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(3):
+        if a[k] > 0.0 and b[k] > 0.0:
+            out[k] = wp.min(a[k] * b[k], FLT_MAX)
     return out
 
 
@@ -255,7 +273,13 @@ def _make_kernels(F: Features):
                 index = i
         if wp.static(F.meshes):
             if scene.n_inst > 0:
-                m = mesh_nearest(scene, o, d, t_min, best, time)
+                # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
+                # Warp's triangle t and an analytic t for the same surface differ by ~9 ulps
+                # either way; without the band a mesh on a plane z-fights in a noisy pattern
+                mesh_t_max = best
+                if kind != KIND_NONE:
+                    mesh_t_max = best * (1.0 - TIE)
+                m = mesh_nearest(scene, o, d, t_min, mesh_t_max, time)
                 if m.index >= 0:
                     best = m.t
                     kind = KIND_MESH
@@ -339,16 +363,22 @@ def _make_kernels(F: Features):
                 if wp.mesh_query_ray_anyhit(scene.insts[i].mesh, o_obj, d_obj, t_max):
                     return wp.vec3(0.0, 0.0, 0.0)
             else:
-                # transparent mesh: walk its crossings one by one
-                t0 = float(0.0)
+                # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
+                # triangle from the barycentrics (error: ulps of the mesh coordinates, not of the
+                # ray's length) and the walk goes on from just past it; o + d·t from a far origin
+                # is off by more than the step and found the same crossing again (kt², kt³...)
+                t0 = float(0.0)  # ray parameter of o_cur
                 d_len = wp.length(d_obj)
+                o_cur = o_obj
                 for _k in range(64):
-                    q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj + d_obj * t0, d_obj, t_max - t0)
+                    q = wp.mesh_query_ray(scene.insts[i].mesh, o_cur, d_obj, t_max - t0)
                     if not q.result:
                         break
                     T = wp.cw_mul(T, kt)
-                    t0 = t0 + q.t
-                    t0 = t0 + spawn_offset(max_abs(o_obj + d_obj * t0)) / d_len
+                    p_s = wp.mesh_eval_position(scene.insts[i].mesh, q.face, q.u, q.v)
+                    step = spawn_offset(max_abs(p_s)) / d_len
+                    t0 = t0 + q.t + step
+                    o_cur = p_s + d_obj * step
                     if t0 >= t_max or wp.max(T) <= 0.0:
                         break
             if wp.max(T) <= 0.0:
@@ -477,8 +507,8 @@ def _make_kernels(F: Features):
                 T = shadow(scene, origin, y, 2.0 * spawn_offset(y_mag), time)
                 if wp.max(T) <= 0.0:
                     continue
-                acc += wp.cw_mul(T, f) * (inv_pdf / wp.pi)
-            L += wp.cw_mul(le, acc) / float(ns)
+                acc += mul_sat(mul_sat(T, f), wp.vec3(inv_pdf / wp.pi))
+            L += mul_sat(le, acc) / float(ns)
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
     @wp.func
@@ -514,7 +544,7 @@ def _make_kernels(F: Features):
             I = scene.plights[i].intensity
             if scene.plights[i].inv_sq != 0:
                 I = I / (dist * dist)
-            L += wp.cw_mul(T, wp.cw_mul(I, f))
+            L += mul_sat(T, mul_sat(I, f))
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
     @wp.func
@@ -543,8 +573,8 @@ def _make_kernels(F: Features):
             time = cam.t_open
             if wp.static(F.motion):
                 if params.moving != 0 and cam.t_close > cam.t_open:
-                    ut = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_TIME))
-                    time = cam.t_open + (cam.t_close - cam.t_open) * ut[0]
+                    ut = sample_1d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_TIME))
+                    time = cam.t_open + (cam.t_close - cam.t_open) * ut
             ul = wp.vec2(0.5, 0.5)
             if wp.static(F.lens):
                 if cam.lens_radius > 0.0:
@@ -571,7 +601,7 @@ def _make_kernels(F: Features):
                     t_hi = params.t_max
                 h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                 if h.kind == KIND_NONE:
-                    L += wp.cw_mul(e.w, scene.background)
+                    L += mul_sat(e.w, scene.background)
                     continue
                 front = wp.dot(e.d, h.ng) < 0.0
                 ng = h.ng
@@ -584,10 +614,10 @@ def _make_kernels(F: Features):
                 le = scene.mats[h.mat].emit
                 if wp.max(le) > 0.0:
                     if front:
-                        L += wp.cw_mul(e.w, le)
+                        L += mul_sat(e.w, le)
                     continue
                 v = -e.d
-                local = wp.cw_mul(scene.mats[h.mat].ka, scene.ambient)
+                local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
                 dl = direct_light(scene, h, ng, n, v, time)
                 rays += int(dl[3])
                 local += wp.vec3(dl[0], dl[1], dl[2])
@@ -601,7 +631,7 @@ def _make_kernels(F: Features):
                                                 scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
                         rays += int(al[3])
                         local += wp.vec3(al[0], al[1], al[2])
-                L += wp.cw_mul(e.w, local)
+                L += mul_sat(e.w, local)
 
                 if wp.static(F.secondary):
                     if e.depth < params.max_depth:
@@ -631,7 +661,7 @@ def _make_kernels(F: Features):
                                             ug = sample_2d(params.sampler, params.seed, pixel, s, params.spp,
                                                            hash2(e.key, wp.uint32(2)))
                                             tdir = lobe(ug, tdir, frost)
-                                    tw = wp.cw_mul(e.w, w_refr)
+                                    tw = mul_sat(e.w, w_refr)
                                     if wp.dot(tdir, ng) < 0.0 and wp.max(tw) > params.min_weight:
                                         if sp < STACK_SIZE:
                                             child = RayEntry()
@@ -644,7 +674,7 @@ def _make_kernels(F: Features):
                                             sp += 1
                                         else:
                                             dropped += 1
-                        rw = wp.cw_mul(e.w, w_refl)
+                        rw = mul_sat(e.w, w_refl)
                         if wp.max(rw) > params.min_weight:
                             r = reflect(e.d, n)
                             if wp.static(F.glossy):

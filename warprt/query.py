@@ -21,7 +21,7 @@ from . import _warp
 from .build import KIND_NONE, CameraData, DeviceScene, Features, SceneData
 from .errors import RenderError
 from .integrator import camera_ray, kernels_for
-from .sampling import SAMPLER_IDS, sample_2d
+from .sampling import SAMPLER_IDS, sample_1d, sample_2d
 from .scene.description import Scene
 
 _lock = threading.Lock()
@@ -68,6 +68,12 @@ def _query_kernels():
             out[i, s] = sample_2d(sampler, seed, pixels[i], s, spp, dim)
 
         @wp.kernel(module="warprt_query", enable_backward=False)
+        def samples_1d_kernel(sampler: int, seed: wp.uint32, pixels: wp.array(dtype=int), spp: int,
+                              dim: wp.uint32, out: wp.array2d(dtype=float)):
+            i, s = wp.tid()
+            out[i, s] = sample_1d(sampler, seed, pixels[i], s, spp, dim)
+
+        @wp.kernel(module="warprt_query", enable_backward=False)
         def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
             i = wp.tid()
             c = accum[i] * inv_spp
@@ -78,7 +84,7 @@ def _query_kernels():
             out[y, x, 2] = c[2]
 
         _kernels["camera"], _kernels["trace"], _kernels["samples"] = camera_kernel, trace_kernel, samples_kernel
-        _kernels["image"] = image_kernel
+        _kernels["image"], _kernels["samples_1d"] = image_kernel, samples_1d_kernel
         return camera_kernel, trace_kernel
 
 
@@ -159,17 +165,30 @@ def pixel_samples(sampler: str, pixels, spp: int, dim: int = 0, seed: int = 0, c
                   device: str | None = None) -> np.ndarray:
     """The 2D samples a sampler gives: array (len(pixels), count, 2) in [0, 1)^2.
 
-    ``dim`` is the dimension key (0 film, 1 lens, 2 time; other keys are light and lobe samples),
-    ``spp`` the planned samples per pixel, ``count`` how many to draw (default ``spp``).
+    ``dim`` is the dimension key (0 film, 1 lens; other keys are light and lobe samples; time
+    is a 1D dimension: see :func:`pixel_samples_1d`), ``spp`` the planned samples per pixel,
+    ``count`` how many to draw (default ``spp``).
     """
+    return _pixel_samples("samples", wp.vec2, sampler, pixels, spp, dim, seed, count, device)
+
+
+def pixel_samples_1d(sampler: str, pixels, spp: int, dim: int = 2, seed: int = 0, count: int | None = None,
+                     device: str | None = None) -> np.ndarray:
+    """The 1D samples a sampler gives: array (len(pixels), count) in [0, 1]. The renderer draws
+    the shutter time (``dim`` 2) this way: ``regular`` and ``stratified`` put one sample in each
+    of spp equal strata (a 2D grid's first coordinate would fill only nx of them)."""
+    return _pixel_samples("samples_1d", float, sampler, pixels, spp, dim, seed, count, device)
+
+
+def _pixel_samples(kernel, dtype, sampler, pixels, spp, dim, seed, count, device) -> np.ndarray:
     if sampler not in SAMPLER_IDS:
         raise RenderError(f"unknown sampler {sampler!r}; expected one of {', '.join(SAMPLER_IDS)}")
     dev = _warp.resolve_device(device)
     pix = np.atleast_1d(np.asarray(pixels, dtype=np.int32))
     count = spp if count is None else count
     _query_kernels()
-    out = wp.zeros((len(pix), count), dtype=wp.vec2, device=dev)
-    wp.launch(_kernels["samples"], dim=(len(pix), count), device=dev,
+    out = wp.zeros((len(pix), count), dtype=dtype, device=dev)
+    wp.launch(_kernels[kernel], dim=(len(pix), count), device=dev,
               inputs=[SAMPLER_IDS[sampler], wp.uint32(seed & 0xFFFFFFFF), wp.array(pix, dtype=int, device=dev),
                       int(spp), wp.uint32(dim & 0xFFFFFFFF), out])
     return out.numpy()

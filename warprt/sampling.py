@@ -12,9 +12,10 @@ Samplers (``RenderSettings.sampler``):
 
 * ``regular``: the n_x × n_y stratum centres, identical in every pixel (aliases, on purpose);
 * ``independent``: uniform random numbers;
-* ``stratified``: one jittered sample in each of the n_x × n_y strata; in every dimension other
-  than the film the strata are visited in a per-pixel random order (padding), so lens, time and
-  light samples are stratified too;
+* ``stratified``: one jittered sample in each of the n_x × n_y strata, visited in a per-pixel
+  random order in every dimension (padding), so lens and light samples are stratified and
+  decorrelated from the film position; ``sample_1d`` (the shutter time) stratifies [0, 1) into
+  spp intervals;
 * ``sobol``: Owen-scrambled Sobol (0,2)-sequence points, shuffled and scrambled per pixel and
   dimension (Burley 2020, "Practical hash-based Owen scrambling"); every power-of-two prefix of
   a pixel's samples is a (0, m, 2)-net in every 2D dimension.
@@ -188,6 +189,29 @@ def sample_2d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, d
     jx = u32_to_unit(h)
     jy = u32_to_unit(hash_u32(h ^ wp.uint32(0x68E31DA4)))
     return wp.vec2((float(s % nx) + jx) / float(nx), (float(s / nx) + jy) / float(ny))
+
+
+@wp.func
+def sample_1d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, dim: wp.uint32) -> float:
+    """The 1D sample of dimension ``dim`` for sample ``index`` of ``pixel`` (spp samples planned).
+
+    ``regular``: the centres of spp equal strata of [0, 1), in the same shuffled order in every
+    pixel; ``stratified``: one jittered sample in each of the spp strata, strata shuffled per pixel
+    (a 2D grid would fill only nx of the spp strata along one axis); ``independent`` and
+    ``sobol``: the first coordinate of ``sample_2d`` (Sobol's first dimension, scrambled van der
+    Corput, is already stratified at every power-of-two prefix)."""
+    if sampler == 1 or sampler == 3:
+        return sample_2d(sampler, seed, pixel, index, spp, dim)[0]
+    key = hash2(pixel_key(seed, pixel), dim)
+    n = wp.max(spp, 1)
+    rnd = index / n  # samples beyond spp start a new round of strata
+    s = index - rnd * n
+    if sampler == 0:
+        s = permute(s, n, hash2(hash_u32(dim), wp.uint32(rnd)))  # same order in every pixel
+        return (float(s) + 0.5) / float(n)
+    s = permute(s, n, hash2(hash2(key, wp.uint32(0x1D)), wp.uint32(rnd)))
+    j = u32_to_unit(hash2(hash2(key, wp.uint32(0x7A4)), wp.uint32(index)))
+    return (float(s) + j) / float(n)
 
 
 # --- sampling maps -------------------------------------------------------------------------------

@@ -65,12 +65,15 @@ def fresnel(mode: int, cos_i: float, eta_i: float, eta_t: float) -> float:
 
 @wp.func
 def phong_power(x: float, p: float) -> float:
-    """max(0, x)^p without NaN: 0^0 = 1, any huge p underflows to 0."""
+    """max(0, x)^p without NaN: 0^0 = 1, any huge p underflows to 0, and x >= 1 (n·h of float32
+    unit vectors can exceed 1) gives 1 also for p = inf (a p beyond the float32 range)."""
     if p == 0.0:
         return 1.0
     if x <= 0.0:
         return 0.0
-    return wp.exp(p * wp.log(wp.min(x, 1.0)))
+    if x >= 1.0:
+        return 1.0
+    return wp.exp(p * wp.log(x))
 
 
 @wp.func

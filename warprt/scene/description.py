@@ -31,6 +31,9 @@ SAMPLERS = ("regular", "independent", "stratified", "sobol")
 FALLOFFS = ("none", "inverse_square")
 FRESNEL_MODES = ("none", "schlick", "exact")
 MAX_DEPTH_LIMIT = 64
+# largest render.clamp: the kernel works in float32 (max 3.4e38) and sums up to 2^20 clamped samples
+# per pixel, so a larger clamp (1e300 is finite in Python, inf on the device) let Inf pixels through
+CLAMP_LIMIT = 1e30
 
 
 # --- coercion helpers (raise SceneError naming the field) ------------------------------------
@@ -392,7 +395,10 @@ class Material:
 
     @property
     def glossy(self) -> bool:
-        return (self.reflects and self.glossy_exponent > 0) or (self.refracts and self.frosted_exponent > 0)
+        # a transparent material reflects by total internal reflection even without mirror or
+        # Fresnel, and those reflections use the glossy lobe too
+        return ((self.reflects or self.refracts) and self.glossy_exponent > 0) or \
+            (self.refracts and self.frosted_exponent > 0)
 
 
 DEFAULT_MATERIAL = "default"
@@ -670,7 +676,7 @@ class RenderSettings:
             _set(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True))
         if self.t_max <= self.t_min:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
-        _set(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True))
+        _set(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
 
 
 Shape = Sphere | Plane | Rectangle | Disk | Mesh

@@ -1,0 +1,118 @@
+"""The samplers' point sets, checked directly (``warprt.query.pixel_samples`` / ``pixel_samples_1d``
+run the renderer's own ``sample_2d`` / ``sample_1d``): range, stratification, net properties and
+determinism. Rendered consequences (convergence rates, moiré) are in test_distribution.py and
+stability/test_moire.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from warprt.errors import RenderError
+from warprt.query import pixel_samples, pixel_samples_1d
+
+PIXELS = np.arange(0, 4000, 97)  # 42 pixels spread over a frame
+DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2
+
+
+def cells(points, nx, ny):
+    """Cell index of each 2D point on an nx × ny grid."""
+    ix = np.minimum((points[..., 0] * nx).astype(int), nx - 1)
+    iy = np.minimum((points[..., 1] * ny).astype(int), ny - 1)
+    return iy * nx + ix
+
+
+@pytest.mark.parametrize("sampler", ["regular", "independent", "stratified", "sobol"])
+@pytest.mark.parametrize("dim", [DIM_FILM, DIM_LENS, 12345])
+def test_samples_lie_in_the_unit_square(sampler, dim):
+    u = pixel_samples(sampler, PIXELS, 64, dim=dim, seed=5)
+    assert u.shape == (len(PIXELS), 64, 2)
+    assert (u >= 0).all() and (u < 1).all()
+
+
+@pytest.mark.parametrize("spp, nx, ny", [(4, 2, 2), (16, 4, 4), (8, 4, 2), (12, 4, 3), (7, 7, 1)])
+def test_stratified_puts_one_jittered_sample_in_each_grid_cell(spp, nx, ny):
+    for dim in (DIM_FILM, DIM_LENS):
+        u = pixel_samples("stratified", PIXELS, spp, dim=dim, seed=3)
+        for row in cells(u, nx, ny):
+            assert sorted(row) == list(range(spp))
+    # jittered, not centred: the offsets inside the cells are spread over the cell
+    frac = (u[..., 0] * nx) % 1.0
+    assert frac.min() < 0.1 and frac.max() > 0.9
+
+
+@pytest.mark.parametrize("spp, nx, ny", [(4, 2, 2), (16, 4, 4), (8, 4, 2)])
+def test_regular_is_the_grid_of_cell_centres_in_every_pixel(spp, nx, ny):
+    u = pixel_samples("regular", PIXELS, spp, dim=DIM_FILM, seed=3)
+    cx, cy = np.meshgrid((np.arange(nx) + 0.5) / nx, (np.arange(ny) + 0.5) / ny)
+    expected = np.stack([cx.ravel(), cy.ravel()], 1)
+    for row in u:
+        np.testing.assert_allclose(row, expected, atol=1e-7)
+
+
+@pytest.mark.parametrize("m", [2, 4, 6])
+def test_sobol_power_of_two_prefix_is_a_0_m_2_net(m):
+    """Owen-scrambled Sobol (first two dimensions): every prefix of 2^m points puts exactly one
+    point in each elementary box of area 2^-m (2^a × 2^(m-a) grids, all a)."""
+    n = 2 ** m
+    u = pixel_samples("sobol", PIXELS, n, dim=DIM_LENS, seed=11)
+    for a in range(m + 1):
+        for row in cells(u, 2 ** a, 2 ** (m - a)):
+            assert sorted(row) == list(range(n)), (a, row)
+
+
+def test_independent_samples_are_uniform():
+    u = pixel_samples("independent", PIXELS, 256, dim=DIM_FILM, seed=1).reshape(-1, 2)
+    counts = np.bincount(cells(u, 4, 4), minlength=16)
+    expected = len(u) / 16
+    chi2 = float(((counts - expected) ** 2 / expected).sum())
+    assert chi2 < 40.0, chi2  # 15 degrees of freedom: P(chi2 > 40) ≈ 5e-4
+    # not stratified: some pixel's 16 samples miss a cell of the 4 x 4 grid
+    u16 = pixel_samples("independent", PIXELS, 16, dim=DIM_FILM, seed=1)
+    assert any(len(set(row)) < 16 for row in cells(u16, 4, 4))
+
+
+@pytest.mark.parametrize("spp", [2, 5, 16, 48])
+def test_time_samples_fill_every_stratum_of_the_shutter(spp):
+    """The shutter time is a 1D sample: ``stratified`` puts one jittered sample in each of the
+    spp equal intervals (the first coordinate of an nx × ny grid filled only nx of them),
+    ``regular`` takes their centres, the same in every pixel."""
+    t = pixel_samples_1d("stratified", PIXELS, spp, dim=DIM_TIME, seed=4)
+    assert t.shape == (len(PIXELS), spp) and (t >= 0).all() and (t <= 1).all()
+    for row in np.minimum((t * spp).astype(int), spp - 1):
+        assert sorted(row) == list(range(spp))
+    assert len(np.unique(t)) > spp  # jittered: different in every pixel
+    r = pixel_samples_1d("regular", PIXELS, spp, dim=DIM_TIME, seed=4)
+    centres = (np.arange(spp) + 0.5) / spp
+    for row in r:
+        np.testing.assert_allclose(np.sort(row), centres, atol=1e-7)
+    np.testing.assert_array_equal(r, np.broadcast_to(r[0], r.shape))
+
+
+@pytest.mark.parametrize("sampler", ["independent", "sobol"])
+def test_1d_samples_of_independent_and_sobol_are_the_first_2d_coordinate(sampler):
+    t = pixel_samples_1d(sampler, PIXELS, 16, dim=DIM_TIME, seed=9)
+    u = pixel_samples(sampler, PIXELS, 16, dim=DIM_TIME, seed=9)
+    np.testing.assert_array_equal(t, u[..., 0])
+    if sampler == "sobol":  # van der Corput: one point in each of the 16 intervals
+        for row in np.minimum((t * 16).astype(int), 15):
+            assert sorted(row) == list(range(16))
+
+
+@pytest.mark.parametrize("sampler", ["independent", "stratified", "sobol"])
+def test_samples_are_a_function_of_seed_pixel_index_and_dimension(sampler):
+    a = pixel_samples(sampler, PIXELS, 16, dim=DIM_FILM, seed=7)
+    np.testing.assert_array_equal(a, pixel_samples(sampler, PIXELS, 16, dim=DIM_FILM, seed=7))
+    # drawing more samples than planned does not change the first ones
+    np.testing.assert_array_equal(a, pixel_samples(sampler, PIXELS, 16, dim=DIM_FILM, seed=7, count=40)[:, :16])
+    for other in (pixel_samples(sampler, PIXELS, 16, dim=DIM_FILM, seed=8),
+                  pixel_samples(sampler, PIXELS, 16, dim=DIM_LENS, seed=7)):
+        assert np.mean(a == other) < 0.01
+    assert np.mean(a[0] == a[1]) < 0.01  # pixels differ
+
+
+def test_unknown_sampler_is_an_error():
+    with pytest.raises(RenderError, match="unknown sampler 'halton'"):
+        pixel_samples("halton", [0], 4)
+    with pytest.raises(RenderError, match="unknown sampler"):
+        pixel_samples_1d("halton", [0], 4)
