@@ -112,9 +112,9 @@ EFFECT_SCENES = {"soft_shadows": soft_shadow_scene, "depth_of_field": dof_scene,
 
 
 def bench_error_vs_time(rows, charts, quick: bool):
-    size = 24 if quick else 48
+    size = 24 if quick else 64
     spps = [1, 4, 16, 64] if quick else [1, 2, 4, 8, 16, 32, 64, 128, 256]
-    ref_spp = 1024 if quick else 8192
+    ref_spp = 1024 if quick else 4096
     curves = {}
     for effect, make in EFFECT_SCENES.items():
         scene = make(size)
@@ -127,11 +127,12 @@ def bench_error_vs_time(rows, charts, quick: bool):
             pts = []
             for spp in spps:
                 errs, walls = [], []
-                for seed in range(1 if sampler == "regular" else 3):
+                for seed in range(3):  # regular ignores the seed: its 3 runs only time it again
                     res = renderer.render(spp=spp, seed=seed, progress=False)
                     errs.append(float(np.mean((res.image.astype(np.float64) - reference) ** 2)) / denom)
                     walls.append(res.wall_time)
-                rel_mse, wall = float(np.mean(errs)), float(np.median(walls))
+                # error: mean over seeds; time: the fastest run (the least disturbed by machine noise)
+                rel_mse, wall = float(np.mean(errs)), float(np.min(walls))
                 pts.append((spp, wall, rel_mse))
                 rows.append({"benchmark": "error_vs_time", "scene": effect, "sampler": sampler, "spp": spp,
                              "seconds": wall, "rel_mse": rel_mse})
@@ -197,7 +198,7 @@ def bench_specialisation(rows, quick: bool):
     full = warprt.Renderer(scene, features=Features.full())
     spec.compile()
     full.compile()
-    spp = 2 if quick else 4
+    spp = 2 if quick else 16
     t_spec, t_full = [], []
     for _ in range(5):  # interleaved, so drift in machine load hits both alike
         t_spec.append(spec.render(spp=spp, progress=False).wall_time)
@@ -261,39 +262,47 @@ t0 = time.perf_counter()
 import warprt
 from warprt import Features
 t_import = time.perf_counter() - t0
-out = {"import_s": t_import}
+name = sys.argv[3]
+scene = warprt.load_scene(sys.argv[2] if name != "showcase" else sys.argv[1]).with_camera(width=64, height=48)
+feats = {"basic": Features(), "full": Features.full(), "showcase": None}.get(name)
+if feats is None and name != "showcase":
+    feats = Features(**{name: True})
 t1 = time.perf_counter()
-plain = warprt.load_scene(sys.argv[2]).with_camera(width=64, height=48)
-warprt.Renderer(plain, device="cpu").render(spp=1, progress=False)
-out["first_image_s"] = time.perf_counter() - t1  # includes Warp's one-off start-up work
-variants = {"basic": Features(), "full": Features.full()}
-variants.update({f: Features(**{f: True}) for f in Features.__dataclass_fields__})
-for name, feats in variants.items():
-    r = warprt.Renderer(plain, device="cpu", features=feats)
-    out["compile_" + name + "_s"] = r.compile()
-scene = warprt.load_scene(sys.argv[1]).with_camera(width=64, height=36)
-r = warprt.Renderer(scene, device="cpu")
-out["showcase_key"] = r.features.key
-out["compile_showcase_s"] = r.compile()
-out["process_s"] = time.perf_counter() - t0
-print(json.dumps(out))
+r = warprt.Renderer(scene, device="cpu", features=feats)
+compile_s = r.compile()
+first_s = time.perf_counter() - t1
+t2 = time.perf_counter()
+r.render(spp=1, progress=False)
+print(json.dumps({"import_s": t_import, "compile_s": compile_s, "first_render_s": time.perf_counter() - t2,
+                  "key": r.features.key}))
 """
+
+COMPILE_VARIANTS = ("basic", "meshes", "area_lights", "secondary", "refraction", "glossy", "lens", "motion", "full",
+                    "showcase")
 
 
 def bench_compile(rows):
-    """Cold-cache compile per kernel variant, in a fresh process with an empty kernel cache."""
-    with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, WARP_CACHE_PATH=cache)
-        start = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET, str(ROOT / "scenes" / "showcase.toml"),
-                               str(ROOT / "scenes" / "diffuse.toml")],
-                              env=env, capture_output=True, text=True, check=True)
-        wall = time.perf_counter() - start
-    out = json.loads(proc.stdout.strip().splitlines()[-1])
-    out["wall_s"] = wall
-    for k, v in out.items():
-        if k.endswith("_s"):
-            rows.append({"benchmark": "compile_cold", "what": k, "seconds": v})
+    """Cold compile of each kernel variant, each in a fresh process with an empty kernel cache, so
+    every figure includes the one-off start-up of Warp's CPU compiler (what a first render on a
+    new machine pays); then a cached load in one more fresh process."""
+    out = {}
+    scenes = [str(ROOT / "scenes" / "showcase.toml"), str(ROOT / "scenes" / "diffuse.toml")]
+    for name in COMPILE_VARIANTS + ("cached",):
+        with tempfile.TemporaryDirectory() as cache:
+            env = dict(os.environ, WARP_CACHE_PATH=cache)
+            if name == "cached":  # compile once, then measure a fresh process loading it
+                subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET, *scenes, "full"], env=env,
+                               capture_output=True, text=True, check=True)
+            start = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-c", _COMPILE_SNIPPET, *scenes,
+                                   "full" if name == "cached" else name],
+                                  env=env, capture_output=True, text=True, check=True)
+            wall = time.perf_counter() - start
+        rec = json.loads(proc.stdout.strip().splitlines()[-1])
+        rec["process_s"] = wall
+        out[name] = rec
+        rows.append({"benchmark": "compile_cold" if name != "cached" else "compile_cached", "what": name,
+                     "key": rec["key"], "seconds": rec["compile_s"], "process_seconds": wall})
     return out
 
 
@@ -320,17 +329,21 @@ def write_charts(charts, out: Path) -> list[str]:
     if "error_vs_time" in charts:
         curves = charts["error_vs_time"]
         effects = sorted({e for e, _ in curves})
-        fig, axes = plt.subplots(1, len(effects), figsize=(4.2 * len(effects), 3.8))
-        for ax, effect in zip(np.atleast_1d(axes), effects):
+        fig, axes = plt.subplots(2, len(effects), figsize=(4.2 * len(effects), 7.2), squeeze=False)
+        for col, effect in enumerate(effects):
             for sampler in SAMPLERS:
                 pts = curves.get((effect, sampler))
                 if pts:
-                    ax.loglog([p[1] for p in pts], [p[2] for p in pts], "o-", ms=3, label=sampler)
-            ax.set_title(effect.replace("_", " "))
-            ax.set_xlabel("wall time (s)")
-            ax.grid(True, which="both", alpha=0.3)
-        np.atleast_1d(axes)[0].set_ylabel("relative MSE vs converged reference")
-        np.atleast_1d(axes)[0].legend()
+                    axes[0, col].loglog([p[1] for p in pts], [p[2] for p in pts], "o-", ms=3, label=sampler)
+                    axes[1, col].loglog([p[0] for p in pts], [p[2] for p in pts], "o-", ms=3, label=sampler)
+            axes[0, col].set_title(effect.replace("_", " "))
+            axes[0, col].set_xlabel("wall time (s), 2 worker threads")
+            axes[1, col].set_xlabel("samples per pixel")
+            for ax in axes[:, col]:
+                ax.grid(True, which="both", alpha=0.3)
+        axes[0, 0].set_ylabel("relative MSE vs converged reference")
+        axes[1, 0].set_ylabel("relative MSE vs converged reference")
+        axes[0, 0].legend()
         fig.tight_layout()
         fig.savefig(out / "error_vs_time.png", dpi=90)
         plt.close(fig)
@@ -363,10 +376,10 @@ def write_charts(charts, out: Path) -> list[str]:
             for i, w in enumerate(workers):
                 axes[0].annotate(f"{tp[w]['mrays_per_s']:.2f}", (i, tp[w]["mrays_per_s"]), ha="center", va="bottom")
         cp = charts.get("compile") or {}
-        names = [k for k in cp if k.startswith("compile_") and k.endswith("_s")]
+        names = [k for k in cp if isinstance(cp[k], dict)]
         if names:
-            axes[1].barh([n[len("compile_"):-2] for n in names], [cp[n] for n in names], color="tab:orange")
-            axes[1].set_xlabel("cold compile, seconds (empty kernel cache)")
+            axes[1].barh(names, [cp[n]["compile_s"] for n in names], color="tab:orange")
+            axes[1].set_xlabel("seconds: cold compile, fresh process ('cached': load)")
             axes[1].invert_yaxis()
         for ax in axes:
             ax.grid(True, axis="x" if ax is axes[1] else "y", alpha=0.3)
