@@ -17,6 +17,16 @@ stack holds 16, so scenes with ``max_depth`` <= 15 never overflow.
 
 Code for features a scene does not use is removed at compile time with ``wp.static``; each
 ``Features`` value compiles one Warp module (``module="unique"``), cached on disk by Warp.
+
+Inlining: Warp passes structs to functions by value, and ``SceneData`` (eleven arrays) is about
+700 bytes. The hot functions (``closest_hit``, ``transmittance``, ``shadow``, ``direct_light``
+and the small helpers they call) are force-inlined (``@wp.func(inline=True)``): left to the C++
+compiler, a kernel with the mesh, area-light and secondary-ray code grew past its inlining
+budget, ``closest_hit`` became a real call that copied the scene for every ray, and the
+all-features kernel ran a plain scene 1.55x slower than the ``basic`` one (1.06-1.09x with the
+hints; the showcase, which uses every feature, 14% faster; about 1.5 s more cold compile for
+the full kernel). The mesh helpers stay compiler-decided: marking them ``inline=False`` made
+mesh-heavy scenes slower (the copy per call again).
 """
 
 from __future__ import annotations
@@ -79,7 +89,7 @@ class MeshHit:
     v: float
 
 
-@wp.func
+@wp.func(inline=True)
 def camera_ray(cam: CameraData, fx: float, fy: float, lens: wp.vec2, time: float) -> Ray:
     """Ray through raster point (fx, fy) (pixel units, y down from the top) at ``time``.
 
@@ -112,7 +122,7 @@ def luminance(c: wp.vec3) -> float:
     return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 
 
-@wp.func
+@wp.func(inline=True)
 def sanitize(c: wp.vec3, clamp: float) -> wp.vec3:
     """NaN -> 0, everything else clamped to [0, clamp] (overflow guard)."""
     out = wp.vec3(0.0, 0.0, 0.0)
@@ -127,7 +137,7 @@ FLT_MAX = 3.4028234663852886e38  # the largest float32
 TIE = 7.62939453125e-06  # 2^-17 (the spawn offset factor): relative band within which an analytic hit beats a mesh hit
 
 
-@wp.func
+@wp.func(inline=True)
 def mul_sat(a: wp.vec3, b: wp.vec3) -> wp.vec3:
     """a·b per component for non-negative colours, never NaN or Inf: a zero (or NaN) factor gives
     0 even against Inf, and a product beyond the float32 range saturates at FLT_MAX. An
@@ -165,7 +175,7 @@ def _make_kernels(F: Features):
             s = s + (scene.insts[i].scl1 - s) * time
         return s
 
-    @wp.func
+    @wp.func(inline=True)
     def sphere_center(scene: SceneData, i: int, time: float) -> wp.vec3:
         c = scene.spheres[i].c0
         if wp.static(F.motion):
@@ -229,7 +239,7 @@ def _make_kernels(F: Features):
         h.mat = scene.insts[index].mat
         return h
 
-    @wp.func
+    @wp.func(inline=True)
     def closest_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> Hit:
         best = float(t_max)
         kind = int(KIND_NONE)
@@ -332,14 +342,14 @@ def _make_kernels(F: Features):
                 h = mesh_details(scene, h, face, bu, bv, time)
         return h
 
-    @wp.func
+    @wp.func(inline=True)
     def crossing(scene: SceneData, mat: int) -> wp.vec3:
         """Light passing one surface of material ``mat`` in a shadow ray: kt, or 0 when opaque."""
         if wp.static(F.refraction):
             return scene.mats[mat].kt
         return wp.vec3(0.0, 0.0, 0.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def sphere_crossings(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float, i: int) -> wp.vec3:
         """Transmission through sphere i along (o, d) over (0, t_max): kt per surface crossed."""
         roots = sphere_roots(o, d, sphere_center(scene, i, time), scene.spheres[i].r)
@@ -385,7 +395,7 @@ def _make_kernels(F: Features):
                 return wp.vec3(0.0, 0.0, 0.0)
         return T
 
-    @wp.func
+    @wp.func(inline=True)
     def transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
         """Fraction of light arriving along the shadow ray (o, d) over (0, t_max): 0 when an
         opaque surface blocks it; transparent surfaces multiply it by their kt per crossing."""
@@ -422,7 +432,7 @@ def _make_kernels(F: Features):
                 T = wp.cw_mul(T, mesh_transmittance(scene, o, d, t_max, time))
         return T
 
-    @wp.func
+    @wp.func(inline=True)
     def shadow(scene: SceneData, origin: wp.vec3, target: wp.vec3, stop_short: float, time: float) -> wp.vec3:
         """Transmittance from ``origin`` to ``target``, ending ``stop_short`` before the target
         (so the light's own surface never occludes it)."""
@@ -511,7 +521,7 @@ def _make_kernels(F: Features):
             L += mul_sat(le, acc) / float(ns)
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
-    @wp.func
+    @wp.func(inline=True)
     def direct_light(scene: SceneData, h: Hit, ng: wp.vec3, n: wp.vec3, v: wp.vec3, time: float) -> wp.vec4:
         """Light reaching the viewer from the point lights (rgb, shadow rays used in w); the area
         lights are summed by ``area_lights_direct``, where each light sample acts as a point light
@@ -547,7 +557,7 @@ def _make_kernels(F: Features):
             L += mul_sat(T, mul_sat(I, f))
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
-    @wp.func
+    @wp.func(inline=True)
     def lobe(u: wp.vec2, axis: wp.vec3, exponent: float) -> wp.vec3:
         return frame_from_z(axis, square_to_cos_power(u, exponent))
 
