@@ -262,15 +262,12 @@ t0 = time.perf_counter()
 import warprt
 from warprt import Features
 t_import = time.perf_counter() - t0
-name = sys.argv[3]
-scene = warprt.load_scene(sys.argv[2] if name != "showcase" else sys.argv[1]).with_camera(width=64, height=48)
-feats = {"basic": Features(), "full": Features.full(), "showcase": None}.get(name)
-if feats is None and name != "showcase":
-    feats = Features(**{name: True})
-t1 = time.perf_counter()
+name = sys.argv[3]  # basic, full, showcase (the scene's own features) or one Features flag
+scene = warprt.load_scene(sys.argv[1] if name == "showcase" else sys.argv[2]).with_camera(width=64, height=48)
+named = {"basic": Features(), "full": Features.full(), "showcase": None}
+feats = named[name] if name in named else Features(**{name: True})
 r = warprt.Renderer(scene, device="cpu", features=feats)
 compile_s = r.compile()
-first_s = time.perf_counter() - t1
 t2 = time.perf_counter()
 r.render(spp=1, progress=False)
 print(json.dumps({"import_s": t_import, "compile_s": compile_s, "first_render_s": time.perf_counter() - t2,

@@ -41,7 +41,7 @@ from .build import (
     Features, RenderParams, SceneData,
 )
 from .geometry import (
-    MISS, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs, refine_on_plane,
+    MISS, SPAWN_REL, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs, refine_on_plane,
     refine_on_sphere, spawn_offset, spawn_origin, sphere_roots,
 )
 from .sampling import frame_from_z, hash2, sample_1d, sample_2d, square_to_cone, square_to_cos_power, square_to_disk
@@ -134,7 +134,7 @@ def sanitize(c: wp.vec3, clamp: float) -> wp.vec3:
 
 
 FLT_MAX = 3.4028234663852886e38  # the largest float32
-TIE = 7.62939453125e-06  # 2^-17 (the spawn offset factor): relative band within which an analytic hit beats a mesh hit
+TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
 
 @wp.func(inline=True)
