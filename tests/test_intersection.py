@@ -20,7 +20,7 @@ import warprt
 
 T_TOL = 2e-5
 N_TOL = 1e-5
-SPAWN_REL = 2.0 ** -17  # the documented spawn offset: |coords| * 2^-17 along the geometric normal
+SPAWN_REL = 2.0 ** -17  # the documented spawn offset: (|n| · coordinate bound) * 2^-17 along the geometric normal
 
 
 def unit(a):
@@ -523,8 +523,10 @@ def test_rays_starting_on_a_mesh_surface(mesh):
     assert r["hit"].all()
     np.testing.assert_allclose(r["t"], t_ref, atol=T_TOL * 5)
     assert not warprt.trace_rays(scene, p, d_out, t_min=1e-4)["hit"].any()
-    # with the renderer's spawn offset (|coords| 2^-17 along the normal) and t_min = 0: the same
-    off = (np.abs(p).max(axis=1) * SPAWN_REL)[:, None] * fn
+    # with the renderer's spawn offset ((|n|·mag)·2^-17 along the normal, mag the per-component
+    # bound of the triangle's and the point's coordinates) and t_min = 0: the same
+    mag = np.maximum(np.abs(tri).max(axis=1), np.abs(p)) + np.abs(p)
+    off = ((np.abs(fn) * mag).sum(1) * SPAWN_REL)[:, None] * fn
     r = warprt.trace_rays(scene, p - off, d_in)
     assert r["hit"].all()
     np.testing.assert_allclose(r["t"], t_ref, atol=T_TOL * 5)
@@ -553,8 +555,15 @@ def test_spawned_rays_do_not_hit_their_own_analytic_surface():
                 rho = radius * np.sqrt(rng.uniform(0, 0.9, (n, 1)))
                 phi = rng.uniform(0, 2 * math.pi, (n, 1))
                 p = c + rho * (np.cos(phi) * a + np.sin(phi) * b)
-            mag = (np.abs(c).max() + radius) if k != 1 else np.maximum(np.abs(p).max(1), np.abs(c).max())[:, None]
-            off = mag * SPAWN_REL * nrm
+            # the documented offset: (|n| · mag)·2^-17, mag the per-component coordinate bound
+            # (sphere |c| + r|n|, plane max(|p|, |p0|), disk |c| + r·sqrt(1 - n_i²))
+            if k == 0:
+                mag = np.abs(c) + radius * np.abs(nrm)
+            elif k == 1:
+                mag = np.maximum(np.abs(p), np.abs(c))
+            else:
+                mag = np.abs(c) + radius * np.sqrt(np.maximum(0.0, 1.0 - nrm ** 2))
+            off = (np.sum(np.abs(nrm) * mag, 1) * SPAWN_REL)[:, None] * nrm
             d = unit(nrm + 0.9 * random_dirs(rng, n))
             d = np.where((np.sum(d * nrm, 1) > 0.05)[:, None], d, nrm)
             r = warprt.trace_rays(scene_of(s), p + off, d)

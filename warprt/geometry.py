@@ -6,12 +6,15 @@ excluded, as in ``wp.mesh_query_ray``. A ray parallel to a plane, rectangle or d
 when it runs inside it.
 
 Spawning secondary rays without self-intersection ("acne"): every hit point is first refined onto
-its surface (spheres: projected to the radius; planar shapes: projected onto the plane; triangles:
-rebuilt from barycentric coordinates), so its error is a few ulps of the coordinates involved,
-not of the ray length. The new origin is then moved off the surface along the geometric normal by
-``spawn_offset(mag)`` = mag · 2^-17 (about 7.6e-6 relative), where ``mag`` bounds the magnitude of
-the coordinates the point was computed from. The offset scales with the scene, so the same rule
-works from 1e-3 to 1e5 units and far from the origin.
+its surface (spheres: projected to the radius; planar shapes and triangles: projected onto their
+plane), so its error along the normal is a few ulps of the coordinates involved, not of the ray
+length. Each hit also carries ``mag``, a per-component bound of the magnitudes those coordinates
+had (a rectangle: |corner| + |edge1| + |edge2|, component by component). The new origin is moved
+off the surface along the geometric normal by ``spawn_offset_n(ng, mag)`` = (|ng| · mag) · 2^-17:
+the error bound projected on the normal, about 64 float32 ulps of it. The offset follows the
+error, not the shape's size: a ground 800 units wide at y = 0 has mag_y = 0 and its rays leave
+from (almost exactly) the surface, while a sphere far from the origin still gets an offset that
+covers the ulps of its centre. ``spawn_offset(mag)`` (a scalar) is kept for steps along a ray.
 """
 
 from __future__ import annotations
@@ -34,9 +37,39 @@ def spawn_offset(mag: float) -> float:
 
 
 @wp.func
-def spawn_origin(p: wp.vec3, ng: wp.vec3, mag: float, side: float) -> wp.vec3:
+def abs3(v: wp.vec3) -> wp.vec3:
+    return wp.vec3(wp.abs(v[0]), wp.abs(v[1]), wp.abs(v[2]))
+
+
+@wp.func
+def spawn_offset_n(ng: wp.vec3, mag: wp.vec3) -> float:
+    """Offset along the unit normal ``ng`` that clears a hit point whose coordinates were computed
+    from values of per-component magnitude ``mag``: the bound projected on the normal."""
+    return wp.dot(abs3(ng), mag) * SPAWN_REL + SPAWN_ABS
+
+
+@wp.func
+def spawn_origin(p: wp.vec3, ng: wp.vec3, mag: wp.vec3, side: float) -> wp.vec3:
     """p moved off its surface to the ``side`` (+1: along ng, -1: against it)."""
-    return p + ng * (side * spawn_offset(mag))
+    return p + ng * (side * spawn_offset_n(ng, mag))
+
+
+@wp.func
+def quat_rotate_mag(q: wp.quat, m: wp.vec3) -> wp.vec3:
+    """Per-component bound of the terms ``wp.quat_rotate(q, x)`` adds up for any x with |x| <= m:
+    x (2w² - 1) + 2w (q × x) + 2 q (q · x), each term in absolute value. An axis-aligned rotation
+    keeps a zero component zero; a general one spreads every component over all three."""
+    a = wp.vec3(wp.abs(q[0]), wp.abs(q[1]), wp.abs(q[2]))
+    w = wp.abs(q[3])
+    cross_abs = wp.vec3(a[1] * m[2] + a[2] * m[1], a[2] * m[0] + a[0] * m[2], a[0] * m[1] + a[1] * m[0])
+    return m * wp.abs(2.0 * w * w - 1.0) + cross_abs * (2.0 * w) + a * (2.0 * wp.dot(a, m))
+
+
+@wp.func
+def disk_extent(n: wp.vec3, r: float) -> wp.vec3:
+    """Half-extent along each axis of a disk of radius r and unit normal n: r·sqrt(1 - n_i²)."""
+    return wp.vec3(r * wp.sqrt(wp.max(0.0, 1.0 - n[0] * n[0])), r * wp.sqrt(wp.max(0.0, 1.0 - n[1] * n[1])),
+                   r * wp.sqrt(wp.max(0.0, 1.0 - n[2] * n[2])))
 
 
 @wp.func

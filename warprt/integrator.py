@@ -41,8 +41,8 @@ from .build import (
     Features, RenderParams, SceneData,
 )
 from .geometry import (
-    MISS, SPAWN_REL, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs, refine_on_plane,
-    refine_on_sphere, spawn_offset, spawn_origin, sphere_roots,
+    MISS, SPAWN_REL, abs3, disk_extent, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs,
+    quat_rotate_mag, refine_on_plane, refine_on_sphere, spawn_offset, spawn_origin, sphere_roots,
 )
 from .sampling import frame_from_z, hash2, sample_1d, sample_2d, square_to_cone, square_to_cos_power, square_to_disk
 from .shading import blinn_phong, fresnel, reflect, refract
@@ -76,7 +76,7 @@ class Hit:
     p: wp.vec3  # hit point refined onto the surface
     ng: wp.vec3  # unit geometric normal (not flipped)
     ns: wp.vec3  # unit shading normal (not flipped)
-    mag: float  # magnitude bound of the coordinates p was computed from (for spawn offsets)
+    mag: wp.vec3  # per-component magnitude bound of the coordinates p was computed from (spawn offsets)
     mat: int
 
 
@@ -151,6 +151,47 @@ def mul_sat(a: wp.vec3, b: wp.vec3) -> wp.vec3:
     return out
 
 
+@wp.func
+def leaves_face(mid: wp.uint64, face: int, o: wp.vec3, d: wp.vec3) -> bool:
+    """True when the ray (o, d) (object space) cannot meet the plane of triangle ``face`` at t > 0:
+    it starts on that plane, or on the side it moves away from. Warp's triangle test works in
+    coordinates relative to the ray origin and is not sign-exact for an origin within its
+    rounding (ulps of the triangle's coordinates) of the plane: a ray leaving a triangle 800 units
+    wide can "hit" it again at t ~ 1e-4. The plane test here is exact for axis-aligned triangles
+    and otherwise errs far less than the spawn offset."""
+    mesh = wp.mesh_get(mid)
+    v0 = mesh.points[mesh.indices[face * 3]]
+    n = wp.mesh_eval_face_normal(mid, face)
+    return wp.dot(n, o - v0) * wp.dot(n, d) >= 0.0
+
+
+@wp.func
+def mesh_first_hit(mid: wp.uint64, o: wp.vec3, d: wp.vec3, t_max: float) -> MeshHit:
+    """Nearest hit of mesh ``mid`` along (o, d) (object space) in (0, t_max) on a triangle the ray
+    really approaches (see ``leaves_face``); ``index`` 0 for a hit, -1 for none. A rejected hit
+    (or one exactly at the origin) is stepped over by its rounding and the query repeated."""
+    r = MeshHit()
+    r.index = -1
+    t0 = float(0.0)
+    for _k in range(4):
+        q = wp.mesh_query_ray(mid, o + d * t0, d, t_max - t0)
+        if not q.result:
+            return r
+        if q.t > 0.0 and not leaves_face(mid, q.face, o, d):
+            r.index = 0
+            r.t = t0 + q.t
+            r.face = q.face
+            r.u = q.u
+            r.v = q.v
+            return r
+        mesh = wp.mesh_get(mid)
+        v0 = mesh.points[mesh.indices[q.face * 3]]
+        t0 = t0 + wp.max(q.t, 0.0) + spawn_offset(max_abs(o) + max_abs(v0)) / wp.length(d)
+        if t0 >= t_max:
+            return r
+    return r
+
+
 def _make_kernels(F: Features):
     """Build the device functions and the render kernel for one feature set."""
 
@@ -195,13 +236,10 @@ def _make_kernels(F: Features):
             scl = instance_pose_scl(scene, i, time)
             o_obj = wp.cw_div(wp.quat_rotate_inv(rot, start - pos), scl)
             d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
-            q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj, d_obj, best - t_min)
-            if q.result and q.t <= 0.0:
-                # a hit exactly at t_min is outside the open range (t_min, t_max): look beyond it
-                step = spawn_offset(max_abs(o_obj)) / wp.length(d_obj)
-                q = wp.mesh_query_ray(scene.insts[i].mesh, o_obj + d_obj * step, d_obj, best - t_min - step)
-                q.t = q.t + step
-            if q.result:
+            # (a hit exactly at t_min is outside the open range (t_min, t_max): mesh_first_hit
+            # looks beyond it, as it does past a ray's own surface)
+            q = mesh_first_hit(scene.insts[i].mesh, o_obj, d_obj, best - t_min)
+            if q.index >= 0:
                 if q.t + t_min < best:
                     best = q.t + t_min
                     r.t = best
@@ -212,21 +250,50 @@ def _make_kernels(F: Features):
         return r
 
     @wp.func
-    def mesh_details(scene: SceneData, h_in: Hit, face: int, bu: float, bv: float, time: float) -> Hit:
-        """h_in with the point, normals and material of its mesh hit filled in."""
+    def mesh_details(scene: SceneData, h_in: Hit, o: wp.vec3, d: wp.vec3, face: int, bu: float, bv: float,
+                     time: float) -> Hit:
+        """h_in with the point, normals and material of its mesh hit filled in.
+
+        The point is taken, in object space, from the barycentrics or from the ray's crossing of
+        the triangle's plane, whichever was computed from smaller coordinates (the barycentric
+        point of a triangle 1e4 wide is off by ~1e-3 along the surface; the ray point seen from a
+        far camera likewise), and then projected onto that plane."""
         h = h_in
         index = h.index
         mid = scene.insts[index].mesh
         pos = instance_pose_pos(scene, index, time)
         rot = instance_pose_rot(scene, index, time)
         scl = instance_pose_scl(scene, index, time)
-        p_obj = wp.mesh_eval_position(mid, face, bu, bv)
-        h.p = wp.quat_rotate(rot, wp.cw_mul(p_obj, scl)) + pos
+        mesh = wp.mesh_get(mid)
+        v0 = mesh.points[mesh.indices[face * 3 + 0]]
+        v1 = mesh.points[mesh.indices[face * 3 + 1]]
+        v2 = mesh.points[mesh.indices[face * 3 + 2]]
+        tri_mag = wp.max(abs3(v0), wp.max(abs3(v1), abs3(v2)))
         n_obj = wp.mesh_eval_face_normal(mid, face)
+        p_obj = wp.mesh_eval_position(mid, face, bu, bv)
+        if max_abs(o) + h.t < max_abs(wp.cw_mul(tri_mag, scl)) + max_abs(pos):
+            # the ray met the triangle's plane (in object space, like intersect_plane: exact for
+            # an axis-aligned triangle) where Warp's t says, give or take its rounding
+            o_obj = wp.cw_div(wp.quat_rotate_inv(rot, o - pos), scl)
+            d_obj = wp.cw_div(wp.quat_rotate_inv(rot, d), scl)
+            # (Warp's own t is off by up to ~0.3% on a triangle 1e4 times wider than the ray
+            # length; the plane's t is used unless the ray grazes the plane)
+            denom = wp.dot(n_obj, d_obj)
+            if wp.abs(denom) > 1.0e-2 * wp.length(d_obj):
+                t_plane = wp.dot(n_obj, v0 - o_obj) / denom
+                if wp.abs(t_plane - h.t) <= 1.0e-2 * h.t:
+                    p_obj = o_obj + d_obj * t_plane
+                    h.t = t_plane
+        p_obj = refine_on_plane(p_obj, v0, n_obj)
+        h.p = wp.quat_rotate(rot, wp.cw_mul(p_obj, scl)) + pos
+        # error bound: the triangle's coordinates (its plane), carried through scale and rotation,
+        # plus the translation and the point itself (the rounding of the transform and of the
+        # next ray's way back into object space)
+        m_obj = wp.cw_mul(wp.max(tri_mag, abs3(p_obj)), abs3(scl))
+        h.mag = quat_rotate_mag(rot, m_obj) + abs3(pos) + abs3(h.p)
         h.ng = wp.normalize(wp.quat_rotate(rot, wp.cw_div(n_obj, scl)))
         h.ns = h.ng
         if scene.insts[index].smooth != 0:
-            mesh = wp.mesh_get(mid)
             off = scene.insts[index].nrm_off
             n0 = scene.normals[off + mesh.indices[face * 3 + 0]]
             n1 = scene.normals[off + mesh.indices[face * 3 + 1]]
@@ -235,7 +302,6 @@ def _make_kernels(F: Features):
             ns_w = wp.quat_rotate(rot, wp.cw_div(ns_obj, scl))
             if wp.length(ns_w) > 0.0:
                 h.ns = wp.normalize(ns_w)
-        h.mag = max_abs(h.p) + max_abs(pos)
         h.mat = scene.insts[index].mat
         return h
 
@@ -312,14 +378,14 @@ def _make_kernels(F: Features):
             h.p = refine_on_sphere(p, c, r)
             h.ng = wp.normalize(h.p - c)
             h.ns = h.ng
-            h.mag = max_abs(c) + r
+            h.mag = abs3(c) + abs3(h.ng) * r  # the centre, and the radius along each axis
             h.mat = scene.spheres[index].mat
         elif kind == KIND_PLANE:
             n = scene.planes[index].n
             h.p = refine_on_plane(p, scene.planes[index].p, n)
             h.ng = n
             h.ns = n
-            h.mag = wp.max(max_abs(h.p), max_abs(scene.planes[index].p))
+            h.mag = wp.max(abs3(h.p), abs3(scene.planes[index].p))
             h.mat = scene.planes[index].mat
         elif kind == KIND_RECT:
             n = scene.rects[index].n
@@ -327,7 +393,7 @@ def _make_kernels(F: Features):
             h.p = refine_on_plane(p, c, n)
             h.ng = n
             h.ns = n
-            h.mag = max_abs(c) + max_abs(scene.rects[index].e1) + max_abs(scene.rects[index].e2)
+            h.mag = abs3(c) + abs3(scene.rects[index].e1) + abs3(scene.rects[index].e2)
             h.mat = scene.rects[index].mat
         elif kind == KIND_DISK:
             n = scene.disks[index].n
@@ -335,11 +401,11 @@ def _make_kernels(F: Features):
             h.p = refine_on_plane(p, c, n)
             h.ng = n
             h.ns = n
-            h.mag = max_abs(c) + scene.disks[index].r
+            h.mag = abs3(c) + disk_extent(n, scene.disks[index].r)
             h.mat = scene.disks[index].mat
         if wp.static(F.meshes):
             if kind == KIND_MESH:
-                h = mesh_details(scene, h, face, bu, bv, time)
+                h = mesh_details(scene, h, o, d, face, bu, bv, time)
         return h
 
     @wp.func(inline=True)
@@ -371,7 +437,9 @@ def _make_kernels(F: Features):
             kt = crossing(scene, scene.insts[i].mat)
             if wp.max(kt) <= 0.0:
                 if wp.mesh_query_ray_anyhit(scene.insts[i].mesh, o_obj, d_obj, t_max):
-                    return wp.vec3(0.0, 0.0, 0.0)
+                    # any hit at all: make sure it is not the surface the ray leaves
+                    if mesh_first_hit(scene.insts[i].mesh, o_obj, d_obj, t_max).index >= 0:
+                        return wp.vec3(0.0, 0.0, 0.0)
             else:
                 # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
                 # triangle from the barycentrics (error: ulps of the mesh coordinates, not of the
@@ -381,8 +449,8 @@ def _make_kernels(F: Features):
                 d_len = wp.length(d_obj)
                 o_cur = o_obj
                 for _k in range(64):
-                    q = wp.mesh_query_ray(scene.insts[i].mesh, o_cur, d_obj, t_max - t0)
-                    if not q.result:
+                    q = mesh_first_hit(scene.insts[i].mesh, o_cur, d_obj, t_max - t0)
+                    if q.index < 0:
                         break
                     T = wp.cw_mul(T, kt)
                     p_s = wp.mesh_eval_position(scene.insts[i].mesh, q.face, q.u, q.v)

@@ -628,7 +628,7 @@ def grazing_glass_scene(alpha, glass, lit_floor=True):
 def test_refraction_at_grazing_incidence_follows_snell(alpha):
     """kt = 1, no Fresnel: the pixel is the floor's radiance h/√(h² + ρ²) where the refracted ray
     lands, ρ from the light's foot. The landing point from the float32 ray in float64 (entry
-    point, t = η d + (η c − √k) n, the refracted ray starting 2^-17·|p| below the surface) and
+    point, t = η d + (η c − √k) n, the refracted ray starting (|n|·|p|)·2^-17 below the surface) and
     the decoded ρ agree within 1e-6 (measured 3e-7); the ray's slope tends to tan θc as α → 0."""
     scene = grazing_glass_scene(alpha, warprt.Material(kd=0.0, ka=0.0, transparency=1.0, ior=IOR))
     v = image(scene)[:, 0, 0].astype(np.float64)
@@ -641,7 +641,7 @@ def test_refraction_at_grazing_incidence_follows_snell(alpha):
     n, eta = np.array([0.0, 1.0, 0.0]), 1.0 / IOR
     k = 1.0 - eta ** 2 * (1.0 - sin_a ** 2)
     tdir = eta * d + (eta * sin_a - np.sqrt(k))[:, None] * n
-    start = entry - (SPAWN_REL * np.abs(entry).max(1))[:, None] * n
+    start = entry - (SPAWN_REL * np.abs(entry) @ np.abs(n))[:, None] * n  # (|n|·max(|p|, |p0|))·2^-17, p0 = 0
     land = start + ((-FLOOR_D - start[:, 1]) / tdir[:, 1])[:, None] * tdir
     rho = np.hypot(land[:, 0] - LIGHT_X, land[:, 2])
     rho_measured = LIGHT_H * np.sqrt(1.0 / v ** 2 - 1.0)
