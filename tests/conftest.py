@@ -47,12 +47,13 @@ def pytest_terminal_summary(terminalreporter):
     each is one Warp module, a few seconds of compile on a cold cache."""
     import json
 
-    from warprt import integrator, query
+    from warprt import aov, integrator, query
 
-    keys = sorted(f.key for f in integrator._cache)
-    record = {"render_kernel_variants": len(keys), "variants": keys, "query_module": bool(query._kernels)}
+    keys = sorted(f.key for (f,) in integrator.kernels_for.built())
+    extra = [name for name, factory in (("query", query._query_kernels), ("aov", aov._aov_kernel)) if factory.built()]
+    record = {"render_kernel_variants": len(keys), "variants": keys, "other_modules": extra}
     terminalreporter.write_line(f"warprt kernel variants built: {len(keys)} render ({', '.join(keys)})"
-                                f"{' + the query module' if query._kernels else ''}")
+                                + "".join(f" + the {name} module" for name in extra))
     try:
         path = ROOT / ".cache" / "test-kernel-variants.json"
         path.parent.mkdir(parents=True, exist_ok=True)

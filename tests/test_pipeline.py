@@ -135,13 +135,13 @@ def test_sequence_reuses_kernel_and_bvh_and_matches_fresh_renders():
     scene = _animated()
     renderer = warprt.Renderer(frame_scene(scene, 0))
     kernel, mesh = renderer.kernel, renderer.built.meshes[0]
-    variants = len(integrator._cache)
+    variants = len(integrator.kernels_for.built())
     images = []
     for f in range(scene.animation.frames):
         renderer.update(frame_scene(scene, f))
         images.append(renderer.render(spp=2, seed=f, progress=False).image)
         assert renderer.kernel is kernel and renderer.built.meshes[0] is mesh  # no recompile, no BVH rebuild
-    assert len(integrator._cache) == variants
+    assert len(integrator.kernels_for.built()) == variants
     for f in (1, 3):
         fresh = warprt.Renderer(frame_scene(scene, f)).render(spp=2, seed=f, progress=False).image
         assert fresh.tobytes() == images[f].tobytes()

@@ -10,7 +10,7 @@ Quick use::
 The same kernels run on the CPU (tiles over a thread pool) and on CUDA (``device="cuda"``).
 """
 
-from .build import Features
+from .records import Features
 from .errors import RenderError, SceneError
 from .image import read_exr, save_image
 from .query import camera_rays, trace_rays

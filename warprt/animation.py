@@ -21,7 +21,10 @@ from dataclasses import replace
 import numpy as np
 
 from .errors import RenderError
-from .scene.description import Camera, Mesh, Scene, Sphere, Transform
+from .image import save_image
+from .render import Renderer
+from .scene.description import Camera, Mesh, Scene, Sphere
+from .scene.transform import Transform
 
 
 def _interp(keyframes, t: float, name: str, default):
@@ -89,9 +92,6 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
 
     Returns the images (or, with ``output``, writes each frame atomically and returns the paths).
     """
-    from .image import save_image
-    from .render import Renderer
-
     frames = list(range(scene.animation.frames)) if frames is None else list(frames)
     if not frames:
         raise RenderError("no frames to render")
@@ -127,21 +127,3 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
         if bar is not None:
             bar.close()
     return out
-
-
-def as_points(points, count: int, device) -> "np.ndarray | object":
-    """Validate new vertex positions: (count, 3) numbers, or a wp.array of vec3 on ``device``."""
-    import warp as wp
-
-    if isinstance(points, wp.array):
-        if points.dtype != wp.vec3 or points.shape != (count,):
-            raise RenderError(f"points must be a wp.array of {count} vec3, got {points.dtype} {points.shape}")
-        if points.device != device:
-            raise RenderError(f"points are on {points.device}, the scene on {device}")
-        return points
-    p = np.asarray(points, dtype=np.float32)
-    if p.shape != (count, 3):
-        raise RenderError(f"points must have shape ({count}, 3), got {p.shape}")
-    if not np.isfinite(p).all():
-        raise RenderError("points must be finite (NaN or Inf found)")
-    return p

@@ -25,6 +25,7 @@ import numpy as np
 
 from .animation import frame_scene, frame_seed, render_sequence
 from .errors import RenderError
+from .render import Renderer
 from .scene.description import Scene
 
 EXECUTORS = ("local", "thread", "process", "ray")
@@ -32,8 +33,6 @@ EXECUTORS = ("local", "thread", "process", "ray")
 
 def _render_frame(scene: Scene, frame: int, spp, seed: int, device, workers) -> np.ndarray:
     """Render one frame (runs inside a worker: thread, process or Ray task)."""
-    from .render import Renderer
-
     return Renderer(frame_scene(scene, frame), device=device).render(
         spp=spp, seed=frame_seed(seed, frame), workers=workers, progress=False).image
 

@@ -41,13 +41,19 @@ def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.round(s * 255.0), 0, 255).astype(np.uint8)
 
 
-def _read_umask() -> int:
-    mask = os.umask(0o022)  # reading the umask means setting it: done once, at import
+def _umask() -> int:
+    """The process umask, read without changing it where the system tells it (Linux's
+    /proc/self/status); elsewhere by setting and restoring it, at the moment of writing."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
     os.umask(mask)
     return mask
-
-
-_UMASK = _read_umask()
 
 
 def _atomic_write(path: str, write) -> None:
@@ -59,7 +65,7 @@ def _atomic_write(path: str, write) -> None:
     os.close(fd)
     # mkstemp creates the file private (0600); give the finished image the permissions a plain
     # open() would (0666 less the umask), as users of image files expect
-    os.chmod(tmp, 0o666 & ~_UMASK)
+    os.chmod(tmp, 0o666 & ~_umask())
     try:
         write(tmp)
         os.replace(tmp, path)

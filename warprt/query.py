@@ -6,93 +6,77 @@ shape it belongs to. Both run on the device with the same device functions as th
 so tests can check the renderer's geometry against closed forms, and pipelines can use warprt as
 a ray caster (lidar-like sensors, picking).
 
-The query kernels live in one Warp module built for every feature (compiled once per process
-when first used, then loaded from Warp's cache).
+The query kernels live in one Warp module of their own (``warprt_query``), built for every
+feature (compiled once per process when first used, then loaded from Warp's cache).
 """
 
 from __future__ import annotations
-
-import threading
 
 import numpy as np
 import warp as wp
 
 from . import _warp
-from .build import KIND_NONE, CameraData, DeviceScene, Features, SceneData
+from ._warp import build_once
+from .build import DeviceScene
+from .camera import camera_data, camera_ray
 from .errors import RenderError
-from .integrator import camera_ray, kernels_for
+from .records import KIND_NONE, CameraData, Features, SceneData
 from .sampling import SAMPLER_IDS, sample_1d, sample_2d
 from .scene.description import Scene
-
-_lock = threading.Lock()
-_kernels: dict[str, object] = {}
+from .trace import make_trace
 
 
-def _query_kernels():
-    with _lock:
-        if _kernels:
-            return _kernels["camera"], _kernels["trace"]
-        fns = kernels_for(Features.full())
-        closest_hit = fns.closest_hit
+@build_once
+def _query_kernels() -> dict:
+    closest_hit = make_trace(Features.full()).closest_hit
 
-        @wp.kernel(module="warprt_query", enable_backward=False)
-        def camera_kernel(cam: CameraData, fx: wp.array(dtype=float), fy: wp.array(dtype=float),
-                          lens: wp.array(dtype=wp.vec2), time: float,
-                          origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3)):
-            i = wp.tid()
-            r = camera_ray(cam, fx[i], fy[i], lens[i], time)
-            origins[i] = r.o
-            dirs[i] = r.d
+    @wp.kernel(module="warprt_query", enable_backward=False)
+    def camera_kernel(cam: CameraData, fx: wp.array(dtype=float), fy: wp.array(dtype=float),
+                      lens: wp.array(dtype=wp.vec2), time: float,
+                      origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3)):
+        i = wp.tid()
+        r = camera_ray(cam, fx[i], fy[i], lens[i], time)
+        origins[i] = r.o
+        dirs[i] = r.d
 
-        @wp.kernel(module="warprt_query", enable_backward=False)
-        def trace_kernel(scene: SceneData, origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
-                         t_min: float, t_max: float, time: float,
-                         out_t: wp.array(dtype=float), out_p: wp.array(dtype=wp.vec3),
-                         out_n: wp.array(dtype=wp.vec3), out_ns: wp.array(dtype=wp.vec3),
-                         out_kind: wp.array(dtype=int), out_index: wp.array(dtype=int)):
-            i = wp.tid()
-            d = dirs[i]
-            h = closest_hit(scene, origins[i], wp.normalize(d), t_min, t_max, time)
-            out_t[i] = h.t
-            out_kind[i] = h.kind
-            out_index[i] = h.index
-            if h.kind != -1:
-                out_p[i] = h.p
-                out_n[i] = h.ng
-                out_ns[i] = h.ns
+    @wp.kernel(module="warprt_query", enable_backward=False)
+    def trace_kernel(scene: SceneData, origins: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
+                     t_min: float, t_max: float, time: float,
+                     out_t: wp.array(dtype=float), out_p: wp.array(dtype=wp.vec3),
+                     out_n: wp.array(dtype=wp.vec3), out_ns: wp.array(dtype=wp.vec3),
+                     out_kind: wp.array(dtype=int), out_index: wp.array(dtype=int)):
+        i = wp.tid()
+        d = dirs[i]
+        h = closest_hit(scene, origins[i], wp.normalize(d), t_min, t_max, time)
+        out_t[i] = h.t
+        out_kind[i] = h.kind
+        out_index[i] = h.index
+        if h.kind != KIND_NONE:
+            out_p[i] = h.p
+            out_n[i] = h.ng
+            out_ns[i] = h.ns
 
-        @wp.kernel(module="warprt_query", enable_backward=False)
-        def samples_kernel(sampler: int, seed: wp.uint32, pixels: wp.array(dtype=int), spp: int,
-                           dim: wp.uint32, out: wp.array2d(dtype=wp.vec2)):
-            i, s = wp.tid()
-            out[i, s] = sample_2d(sampler, seed, pixels[i], s, spp, dim)
+    @wp.kernel(module="warprt_query", enable_backward=False)
+    def samples_kernel(sampler: int, seed: wp.uint32, pixels: wp.array(dtype=int), spp: int,
+                       dim: wp.uint32, out: wp.array2d(dtype=wp.vec2)):
+        i, s = wp.tid()
+        out[i, s] = sample_2d(sampler, seed, pixels[i], s, spp, dim)
 
-        @wp.kernel(module="warprt_query", enable_backward=False)
-        def samples_1d_kernel(sampler: int, seed: wp.uint32, pixels: wp.array(dtype=int), spp: int,
-                              dim: wp.uint32, out: wp.array2d(dtype=float)):
-            i, s = wp.tid()
-            out[i, s] = sample_1d(sampler, seed, pixels[i], s, spp, dim)
+    @wp.kernel(module="warprt_query", enable_backward=False)
+    def samples_1d_kernel(sampler: int, seed: wp.uint32, pixels: wp.array(dtype=int), spp: int,
+                          dim: wp.uint32, out: wp.array2d(dtype=float)):
+        i, s = wp.tid()
+        out[i, s] = sample_1d(sampler, seed, pixels[i], s, spp, dim)
 
-        @wp.kernel(module="warprt_query", enable_backward=False)
-        def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
-            i = wp.tid()
-            c = accum[i] * inv_spp
-            y = i / width
-            x = i - y * width
-            out[y, x, 0] = c[0]
-            out[y, x, 1] = c[1]
-            out[y, x, 2] = c[2]
-
-        _kernels["camera"], _kernels["trace"], _kernels["samples"] = camera_kernel, trace_kernel, samples_kernel
-        _kernels["image"], _kernels["samples_1d"] = image_kernel, samples_1d_kernel
-        return camera_kernel, trace_kernel
+    return {"camera": camera_kernel, "trace": trace_kernel, "samples": samples_kernel, "samples_1d": samples_1d_kernel}
 
 
 def _built(scene, device) -> DeviceScene:
-    from .render import Renderer
-
-    if isinstance(scene, Renderer):
-        return scene.built
+    """A built scene: a Scene is built on ``device``; a Renderer (anything holding a built
+    scene as ``.built``) lends its own."""
+    built = getattr(scene, "built", None)
+    if isinstance(built, DeviceScene):
+        return built
     if not isinstance(scene, Scene):
         raise RenderError(f"expected a warprt.Scene or Renderer, got {type(scene).__name__}")
     return DeviceScene(scene, _warp.resolve_device(device))
@@ -114,9 +98,7 @@ def camera_rays(scene: Scene, points=None, lens=None, time: float = 0.0, device:
     points = np.asarray(points, dtype=np.float32).reshape(-1, 2)
     n = len(points)
     lens = np.full((n, 2), 0.5, np.float32) if lens is None else np.asarray(lens, np.float32).reshape(n, 2)
-    from .build import camera_data
-
-    camera_kernel, _ = _query_kernels()
+    camera_kernel = _query_kernels()["camera"]
     origins = wp.zeros(n, dtype=wp.vec3, device=dev)
     dirs = wp.zeros(n, dtype=wp.vec3, device=dev)
     wp.launch(camera_kernel, dim=n, device=dev,
@@ -147,7 +129,7 @@ def trace_rays(scene, origins, directions, t_min: float = 0.0, t_max: float = np
     if (np.linalg.norm(d, axis=1) == 0).any():
         raise RenderError("every direction must be non-zero")
     n = len(o)
-    _, trace_kernel = _query_kernels()
+    trace_kernel = _query_kernels()["trace"]
     out = [wp.zeros(n, dtype=t, device=dev) for t in (float, wp.vec3, wp.vec3, wp.vec3, int, int)]
     wp.launch(trace_kernel, dim=n, device=dev,
               inputs=[built.data, wp.array(o, dtype=wp.vec3, device=dev), wp.array(d, dtype=wp.vec3, device=dev),
@@ -186,18 +168,8 @@ def _pixel_samples(kernel, dtype, sampler, pixels, spp, dim, seed, count, device
     dev = _warp.resolve_device(device)
     pix = np.atleast_1d(np.asarray(pixels, dtype=np.int32))
     count = spp if count is None else count
-    _query_kernels()
     out = wp.zeros((len(pix), count), dtype=dtype, device=dev)
-    wp.launch(_kernels[kernel], dim=(len(pix), count), device=dev,
+    wp.launch(_query_kernels()[kernel], dim=(len(pix), count), device=dev,
               inputs=[SAMPLER_IDS[sampler], wp.uint32(seed & 0xFFFFFFFF), wp.array(pix, dtype=int, device=dev),
                       int(spp), wp.uint32(dim & 0xFFFFFFFF), out])
     return out.numpy()
-
-
-def device_image(accum: "wp.array", spp: int, width: int, height: int) -> "wp.array":
-    """The mean of an accumulation buffer as a (height, width, 3) float32 ``wp.array`` on its device."""
-    _query_kernels()
-    out = wp.zeros((height, width, 3), dtype=float, device=accum.device)
-    wp.launch(_kernels["image"], dim=width * height, device=accum.device,
-              inputs=[accum, 1.0 / float(spp), width, out])
-    return out

@@ -15,7 +15,6 @@ how many samples per pixel the image holds.
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 import threading
@@ -27,10 +26,12 @@ import warp as wp
 
 from . import _warp
 from .aov import compute_aovs
-from .build import DeviceScene, Features, render_params
+from .build import DeviceScene, render_params
+from .camera import camera_data
 from .errors import RenderError
+from .film import Film
 from .integrator import kernels_for
-from .query import device_image
+from .records import Features
 from .scene.description import Scene
 
 
@@ -95,8 +96,6 @@ class Renderer:
 
     def set_camera(self, camera) -> None:
         """Replace the camera (same or different resolution); no rebuild of anything else."""
-        from .build import camera_data
-
         self.scene = self.scene.replace(camera=camera)
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
@@ -116,9 +115,10 @@ class Renderer:
         """
         start = _time.perf_counter()
         dev = self.device
-        one = [wp.zeros(1, dtype=t, device=dev) for t in (wp.vec3, float, int, int)]
+        film = Film(1, 1, dev)
         wp.launch(self.kernel, dim=1, device=dev,
-                  inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features), 0, 0, 1, 1, 0, 0, *one])
+                  inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features),
+                          0, 0, 1, 1, 0, 0, film.data])
         wp.synchronize_device(dev)
         return _time.perf_counter() - start
 
@@ -154,11 +154,7 @@ class Renderer:
 
         cam = self.scene.camera
         width, height, dev = cam.width, cam.height, self.device
-        n = width * height
-        accum = wp.zeros(n, dtype=wp.vec3, device=dev)
-        accum_sq = wp.zeros(n, dtype=float, device=dev)
-        ray_count = wp.zeros(n, dtype=int, device=dev)
-        overflow = wp.zeros(n, dtype=int, device=dev)
+        film = Film(width, height, dev)
         params = render_params(self.scene, int(spp), int(seed), self.built.features)
         self.compile()
 
@@ -167,8 +163,7 @@ class Renderer:
         def launch(tile, s0, s1):
             x0, y0, tw, th = tile
             wp.launch(self.kernel, dim=tw * th, device=dev,
-                      inputs=[self.built.data, self.built.camera, params, x0, y0, tw, th, s0, s1,
-                              accum, accum_sq, ray_count, overflow])
+                      inputs=[self.built.data, self.built.camera, params, x0, y0, tw, th, s0, s1, film.data])
 
         def run_pass(s0: int, s1: int) -> None:
             """Run samples [s0, s1) on every tile, from worker threads (also with one worker, so
@@ -231,7 +226,7 @@ class Renderer:
                 if interrupted or (time_budget is not None and elapsed >= time_budget):
                     break
                 if target_error is not None and done >= 2:
-                    rel_err = _relative_error(accum, accum_sq, done)
+                    rel_err = film.relative_error(done)
                     if rel_err <= target_error:
                         break
         finally:
@@ -239,13 +234,10 @@ class Renderer:
                 bar.close()
         wall = _time.perf_counter() - start
         if target_error is not None and rel_err is None and done >= 2:
-            rel_err = _relative_error(accum, accum_sq, done)
-        if as_warp:
-            image = device_image(accum, done, width, height)
-        else:
-            image = (accum.numpy() * np.float32(1.0 / done)).reshape(height, width, 3)  # as device_image does
-        return RenderResult(image=image, spp=done, wall_time=wall, rays=int(ray_count.numpy().sum(dtype=np.int64)),
-                            stack_overflows=int(overflow.numpy().sum(dtype=np.int64)), features=self.features,
+            rel_err = film.relative_error(done)
+        image = film.device_image(done) if as_warp else film.image(done)
+        return RenderResult(image=image, spp=done, wall_time=wall, rays=film.rays(),
+                            stack_overflows=film.overflows(), features=self.features,
                             device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
 
     @staticmethod
@@ -255,15 +247,6 @@ class Renderer:
         per_spp = max(elapsed / done, 1e-6)
         target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
         return max(1, int(target / per_spp))
-
-
-def _relative_error(accum: wp.array, accum_sq: wp.array, n: int) -> float:
-    """RMS over pixels of the standard error of each pixel's mean luminance, over the mean luminance."""
-    rgb = accum.numpy().astype(np.float64) / n
-    y = 0.2126 * rgb[:, 0] + 0.7152 * rgb[:, 1] + 0.0722 * rgb[:, 2]
-    var = np.maximum(accum_sq.numpy().astype(np.float64) / n - y * y, 0.0) * n / max(n - 1, 1)
-    mean = float(y.mean())
-    return math.sqrt(float(var.mean()) / n) / mean if mean > 0 else 0.0
 
 
 def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | None = None, **options):

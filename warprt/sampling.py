@@ -26,11 +26,15 @@ Sampling maps come with their densities: ``square_to_disk`` (concentric), ``squa
 
 from __future__ import annotations
 
-import math
-
 import warp as wp
 
-SAMPLER_IDS = {"regular": 0, "independent": 1, "stratified": 2, "sobol": 3}
+from .scene.description import SAMPLERS
+
+SAMPLER_IDS = {name: i for i, name in enumerate(SAMPLERS)}  # RenderParams.sampler
+SAMPLER_REGULAR = SAMPLER_IDS["regular"]
+SAMPLER_INDEPENDENT = SAMPLER_IDS["independent"]
+SAMPLER_STRATIFIED = SAMPLER_IDS["stratified"]
+SAMPLER_SOBOL = SAMPLER_IDS["sobol"]
 
 INV_2_24 = 1.0 / 16777216.0
 
@@ -166,10 +170,10 @@ def sample_2d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, d
     """The 2D sample of dimension ``dim`` for sample ``index`` of ``pixel`` (spp samples planned)."""
     pkey = pixel_key(seed, pixel)
     key = hash2(pkey, dim)
-    if sampler == 1:  # independent
+    if sampler == SAMPLER_INDEPENDENT:
         h = hash2(key, wp.uint32(index))
         return wp.vec2(u32_to_unit(h), u32_to_unit(hash_u32(h ^ wp.uint32(0x68E31DA4))))
-    if sampler == 3:  # Owen-scrambled, shuffled Sobol
+    if sampler == SAMPLER_SOBOL:  # Owen-scrambled, shuffled Sobol
         i = owen_scramble(wp.uint32(index), hash2(key, wp.uint32(0x5B0)))
         x = owen_scramble(reverse_bits(i), hash2(key, wp.uint32(0x5B1)))
         y = owen_scramble(sobol_dim1(i), hash2(key, wp.uint32(0x5B2)))
@@ -180,7 +184,7 @@ def sample_2d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, d
     ny = n / nx
     rnd = index / n  # samples beyond spp start a new round of strata
     s = index - rnd * n
-    if sampler == 0:
+    if sampler == SAMPLER_REGULAR:
         if dim != wp.uint32(0):
             s = permute(s, n, hash2(hash_u32(dim), wp.uint32(rnd)))  # same order in every pixel
         return wp.vec2((float(s % nx) + 0.5) / float(nx), (float(s / nx) + 0.5) / float(ny))
@@ -200,13 +204,13 @@ def sample_1d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, d
     (a 2D grid would fill only nx of the spp strata along one axis); ``independent`` and
     ``sobol``: the first coordinate of ``sample_2d`` (Sobol's first dimension, scrambled van der
     Corput, is already stratified at every power-of-two prefix)."""
-    if sampler == 1 or sampler == 3:
+    if sampler == SAMPLER_INDEPENDENT or sampler == SAMPLER_SOBOL:
         return sample_2d(sampler, seed, pixel, index, spp, dim)[0]
     key = hash2(pixel_key(seed, pixel), dim)
     n = wp.max(spp, 1)
     rnd = index / n  # samples beyond spp start a new round of strata
     s = index - rnd * n
-    if sampler == 0:
+    if sampler == SAMPLER_REGULAR:
         s = permute(s, n, hash2(hash_u32(dim), wp.uint32(rnd)))  # same order in every pixel
         return (float(s) + 0.5) / float(n)
     s = permute(s, n, hash2(hash2(key, wp.uint32(0x1D)), wp.uint32(rnd)))
@@ -266,7 +270,3 @@ def frame_from_z(z: wp.vec3, local: wp.vec3) -> wp.vec3:
     s = wp.vec3(b, sign + z[1] * z[1] * a, -z[1])
     return local[0] * t + local[1] * s + local[2] * z
 
-
-def cone_pdf(cos_max: float) -> float:
-    """Density of ``square_to_cone`` (host helper for tests)."""
-    return 1.0 / (2.0 * math.pi * (1.0 - cos_max))

@@ -7,6 +7,7 @@
 * ``fresnel_exact`` / ``fresnel_schlick``: unpolarised dielectric reflectance.
 * ``blinn_phong``: kd·max(0, n·l) + ks·max(0, n·h)^p, the bracket of the lecture's sum, safe for
   any exponent (0 ** 0 is 1, huge exponents underflow to 0, never NaN).
+* ``mul_sat``: the product of two colours that never overflows into NaN.
 """
 
 from __future__ import annotations
@@ -88,3 +89,20 @@ def blinn_phong(n: wp.vec3, l: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3, p:
     if hl > 0.0:
         spec = phong_power(wp.dot(n, h / hl), p)
     return kd * ndotl + ks * spec
+
+
+FLT_MAX = 3.4028234663852886e38  # the largest float32
+
+
+@wp.func(inline=True)
+def mul_sat(a: wp.vec3, b: wp.vec3) -> wp.vec3:
+    """a·b per component for non-negative colours, never NaN or Inf: a zero (or NaN) factor gives
+    0 even against Inf, and a product beyond the float32 range saturates at FLT_MAX. An
+    overflowing light term times a zero weight (a coloured mirror, a coloured glass's
+    transmittance) is then 0, not a NaN that ``sanitize`` would turn into the loss of every
+    other contribution to that channel of the sample. Bit-identical to ``cw_mul`` otherwise."""
+    out = wp.vec3(0.0, 0.0, 0.0)
+    for k in range(3):
+        if a[k] > 0.0 and b[k] > 0.0:
+            out[k] = wp.min(a[k] * b[k], FLT_MAX)
+    return out

@@ -484,7 +484,7 @@ def test_valid_scenes_render_finite_non_negative_images(doc, tmp_path):
     event("image: black" if img.max() == 0 else "image: lit")
     if img.max() >= np.float32(scene.render.clamp):
         event("image: some pixel at the clamp")
-    if any(m.refracts for m in scene.materials.values()) and any(m.reflects for m in scene.materials.values()):
+    if any(any(m.transparency) for m in scene.materials.values()) and any(any(m.mirror) for m in scene.materials.values()):
         event("materials: reflecting and refracting")
     if any(isinstance(sh, Mesh) for sh in scene.shapes):
         event("shapes: a mesh")

@@ -2,8 +2,9 @@
 
 from .description import (
     Animation, Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
-    Scene, Sphere, SphereLight, Transform,
+    Scene, Sphere, SphereLight,
 )
+from .transform import Transform
 from .loader import load_scene, parse_scene, scene_from_string
 
 __all__ = [

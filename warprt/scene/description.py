@@ -17,224 +17,24 @@ field; the loader adds the file name and the position in the file.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..errors import SceneError
+from .transform import Transform, as_transform
+from .values import (
+    RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, norm, set_field,
+)
 
-Vec3 = tuple[float, float, float]
-RGB = tuple[float, float, float]
-
-SAMPLERS = ("regular", "independent", "stratified", "sobol")
+SAMPLERS = ("regular", "independent", "stratified", "sobol")  # RenderSettings.sampler (ids: their order)
 FALLOFFS = ("none", "inverse_square")
 FRESNEL_MODES = ("none", "schlick", "exact")
 MAX_DEPTH_LIMIT = 64
 # largest render.clamp: the kernel works in float32 (max 3.4e38) and sums up to 2^20 clamped samples
 # per pixel, so a larger clamp (1e300 is finite in Python, inf on the device) let Inf pixels through
 CLAMP_LIMIT = 1e30
-
-
-# --- coercion helpers (raise SceneError naming the field) ------------------------------------
-
-
-def _finite(x: float, name: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
-        raise SceneError(f"expected a number, got {x!r}", name)
-    x = float(x)
-    if not math.isfinite(x):
-        raise SceneError(f"must be finite, got {x}", name)
-    return x
-
-
-def as_float(x: Any, name: str, *, minimum: float | None = None, maximum: float | None = None,
-             strict_min: bool = False) -> float:
-    x = _finite(x, name)
-    if minimum is not None and (x < minimum or (strict_min and x == minimum)):
-        raise SceneError(f"must be {'>' if strict_min else '>='} {minimum:g}, got {x:g}", name)
-    if maximum is not None and x > maximum:
-        raise SceneError(f"must be <= {maximum:g}, got {x:g}", name)
-    return x
-
-
-def as_int(x: Any, name: str, *, minimum: int | None = None, maximum: int | None = None) -> int:
-    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
-        if isinstance(x, float) and x.is_integer():
-            x = int(x)
-        else:
-            raise SceneError(f"expected an integer, got {x!r}", name)
-    x = int(x)
-    if minimum is not None and x < minimum:
-        raise SceneError(f"must be >= {minimum}, got {x}", name)
-    if maximum is not None and x > maximum:
-        raise SceneError(f"must be <= {maximum}, got {x}", name)
-    return x
-
-
-def as_vec3(x: Any, name: str) -> Vec3:
-    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
-        raise SceneError(f"expected three numbers [x, y, z], got {x!r}", name)
-    return tuple(_finite(v, f"{name}[{i}]") for i, v in enumerate(x))  # type: ignore[return-value]
-
-
-def as_direction(x: Any, name: str) -> Vec3:
-    v = as_vec3(x, name)
-    n = math.sqrt(sum(c * c for c in v))
-    if n == 0.0 or not math.isfinite(n):
-        raise SceneError("must be a non-zero vector", name)
-    return v
-
-
-def as_rgb(x: Any, name: str, *, maximum: float | None = None) -> RGB:
-    """A colour: one number (grey) or three, each finite and >= 0."""
-    if isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool):
-        c = as_float(x, name, minimum=0.0, maximum=maximum)
-        return (c, c, c)
-    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
-        raise SceneError(f"expected a colour: one number or three [r, g, b], got {x!r}", name)
-    return tuple(as_float(v, f"{name}[{i}]", minimum=0.0, maximum=maximum) for i, v in enumerate(x))  # type: ignore
-
-
-def as_choice(x: Any, name: str, choices: Sequence[str]) -> str:
-    if not isinstance(x, str) or x not in choices:
-        raise SceneError(f"must be one of {', '.join(repr(c) for c in choices)}, got {x!r}", name)
-    return x
-
-
-def _set(obj: Any, name: str, value: Any) -> None:
-    object.__setattr__(obj, name, value)
-
-
-def _norm(v: Sequence[float]) -> float:
-    return math.sqrt(sum(c * c for c in v))
-
-
-# --- transforms ----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Transform:
-    """Scale, then rotate (Euler angles in degrees about x, then y, then z), then translate."""
-
-    translate: Vec3 = (0.0, 0.0, 0.0)
-    rotate: Vec3 = (0.0, 0.0, 0.0)  # degrees about x, then y, then z (extrinsic)
-    scale: Vec3 | float = (1.0, 1.0, 1.0)
-
-    def __post_init__(self):
-        _set(self, "translate", as_vec3(self.translate, "translate"))
-        _set(self, "rotate", as_vec3(self.rotate, "rotate"))
-        s = self.scale
-        if isinstance(s, (int, float, np.integer, np.floating)) and not isinstance(s, bool):
-            s = (s, s, s)
-        s = as_vec3(s, "scale")
-        if any(c == 0.0 for c in s):
-            raise SceneError(f"must be non-zero on every axis, got {list(s)}", "scale")
-        _set(self, "scale", s)
-
-    @property
-    def is_identity(self) -> bool:
-        return self == Transform()
-
-    @property
-    def uniform_scale(self) -> float | None:
-        s = self.scale
-        return s[0] if s[0] == s[1] == s[2] and s[0] > 0 else None
-
-    def rotation_matrix(self) -> np.ndarray:
-        rx, ry, rz = (math.radians(a) for a in self.rotate)
-        cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
-        mx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-        my = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-        mz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-        return mz @ my @ mx
-
-    def quaternion(self) -> np.ndarray:
-        """Rotation as a unit quaternion (x, y, z, w), Warp's layout."""
-        m = self.rotation_matrix()
-        tr = np.trace(m)
-        if tr > 0:
-            s = math.sqrt(tr + 1.0) * 2
-            q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-        elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-            s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-            q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-        elif m[1, 1] > m[2, 2]:
-            s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-            q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-        else:
-            s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-            q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-        q = np.asarray(q)
-        return q / np.linalg.norm(q)
-
-    def matrix(self) -> np.ndarray:
-        """The 4x4 affine matrix mapping object space to world space."""
-        m = np.eye(4)
-        m[:3, :3] = self.rotation_matrix() @ np.diag(self.scale)
-        m[:3, 3] = self.translate
-        return m
-
-    def apply_point(self, p: Sequence[float]) -> Vec3:
-        return tuple(float(c) for c in self.matrix() @ np.array([*p, 1.0]))[:3]  # type: ignore
-
-    def apply_vector(self, v: Sequence[float]) -> Vec3:
-        return tuple(float(c) for c in self.matrix()[:3, :3] @ np.asarray(v, dtype=float))  # type: ignore
-
-    def apply_normal(self, n: Sequence[float]) -> Vec3:
-        m = np.linalg.inv(self.matrix()[:3, :3]).T @ np.asarray(n, dtype=float)
-        return tuple(float(c) for c in m / np.linalg.norm(m))  # type: ignore
-
-
-def as_transform(x: Any, name: str) -> Transform | None:
-    if x is None or isinstance(x, Transform):
-        return x
-    if isinstance(x, Mapping):
-        unknown = set(x) - {"translate", "rotate", "scale"}
-        if unknown:
-            raise SceneError(f"unknown field(s) {sorted(unknown)}; expected translate, rotate, scale", name)
-        try:
-            return Transform(**x)
-        except SceneError as e:
-            raise e.within(name) from None
-    raise SceneError(f"expected a table with translate/rotate/scale, got {x!r}", name)
-
-
-# --- keyframes ---------------------------------------------------------------------------------
-
-
-def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
-    """Keyframes: a list of tables, each with ``time`` (seconds, strictly increasing) and some of
-    ``allowed`` (vectors; ``scale`` may be one number). Values missing from a key are taken
-    from the object's own fields."""
-    if x is None or (isinstance(x, (list, tuple)) and len(x) == 0):
-        return ()
-    if not isinstance(x, (list, tuple)):
-        raise SceneError(f"expected a list of tables with time and {', '.join(allowed)}, got {x!r}", name)
-    out, last = [], -math.inf
-    for i, key in enumerate(x):
-        where = f"{name}[{i}]"
-        if not isinstance(key, Mapping):
-            raise SceneError(f"expected a table, got {key!r}", where)
-        unknown = sorted(set(key) - {"time", *allowed})
-        if unknown:
-            raise SceneError(f"unknown field(s) {', '.join(unknown)}; expected time and some of: {', '.join(allowed)}",
-                             where)
-        if "time" not in key:
-            raise SceneError("every keyframe needs a time", f"{where}.time")
-        t = as_float(key["time"], f"{where}.time")
-        if t <= last:
-            raise SceneError(f"keyframe times must increase, got {t:g} after {last:g}", f"{where}.time")
-        last = t
-        k = {"time": t}
-        for f in allowed:
-            if f in key:
-                v = key[f]
-                if f == "scale" and isinstance(v, (int, float)) and not isinstance(v, bool):
-                    v = (v, v, v)
-                k[f] = as_vec3(v, f"{where}.{f}")
-        out.append(k)
-    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -246,8 +46,8 @@ class Animation:
     fps: float = 24.0
 
     def __post_init__(self):
-        _set(self, "frames", as_int(self.frames, "frames", minimum=1, maximum=1 << 20))
-        _set(self, "fps", as_float(self.fps, "fps", minimum=0.0, strict_min=True))
+        set_field(self, "frames", as_int(self.frames, "frames", minimum=1, maximum=1 << 20))
+        set_field(self, "fps", as_float(self.fps, "fps", minimum=0.0, strict_min=True))
 
 
 # --- camera --------------------------------------------------------------------------------
@@ -277,18 +77,18 @@ class Camera:
     keyframes: tuple = ()  # animation: [{time, eye, look_at}, ...]
 
     def __post_init__(self):
-        _set(self, "eye", as_vec3(self.eye, "eye"))
-        _set(self, "look_at", as_vec3(self.look_at, "look_at"))
-        _set(self, "up", as_direction(self.up, "up"))
-        _set(self, "fov", as_float(self.fov, "fov", minimum=0.0, strict_min=True))
+        set_field(self, "eye", as_vec3(self.eye, "eye"))
+        set_field(self, "look_at", as_vec3(self.look_at, "look_at"))
+        set_field(self, "up", as_direction(self.up, "up"))
+        set_field(self, "fov", as_float(self.fov, "fov", minimum=0.0, strict_min=True))
         if self.fov >= 180.0:
             raise SceneError(f"must be < 180 degrees, got {self.fov:g}", "fov")
-        _set(self, "width", as_int(self.width, "width", minimum=1, maximum=1 << 15))
-        _set(self, "height", as_int(self.height, "height", minimum=1, maximum=1 << 15))
-        _set(self, "distance", as_float(self.distance, "distance", minimum=0.0, strict_min=True))
-        _set(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0))
+        set_field(self, "width", as_int(self.width, "width", minimum=1, maximum=1 << 15))
+        set_field(self, "height", as_int(self.height, "height", minimum=1, maximum=1 << 15))
+        set_field(self, "distance", as_float(self.distance, "distance", minimum=0.0, strict_min=True))
+        set_field(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0))
         if self.focus_distance is not None:
-            _set(self, "focus_distance",
+            set_field(self, "focus_distance",
                  as_float(self.focus_distance, "focus_distance", minimum=0.0, strict_min=True))
         sh = self.shutter
         if isinstance(sh, (str, bytes)) or not isinstance(sh, (Sequence, np.ndarray)) or len(sh) != 2:
@@ -296,12 +96,12 @@ class Camera:
         sh = (as_float(sh[0], "shutter[0]"), as_float(sh[1], "shutter[1]"))
         if sh[1] < sh[0]:
             raise SceneError(f"close time {sh[1]:g} is before open time {sh[0]:g}", "shutter")
-        _set(self, "shutter", sh)
+        set_field(self, "shutter", sh)
         if self.eye_end is not None:
-            _set(self, "eye_end", as_vec3(self.eye_end, "eye_end"))
+            set_field(self, "eye_end", as_vec3(self.eye_end, "eye_end"))
         if self.look_at_end is not None:
-            _set(self, "look_at_end", as_vec3(self.look_at_end, "look_at_end"))
-        _set(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("eye", "look_at")))
+            set_field(self, "look_at_end", as_vec3(self.look_at_end, "look_at_end"))
+        set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("eye", "look_at")))
         for t in (0.0, 1.0):
             self.basis(t)  # raises when the view is degenerate
 
@@ -318,7 +118,7 @@ class Camera:
     def focus(self) -> float:
         if self.focus_distance is not None:
             return self.focus_distance
-        return _norm(np.subtract(self.look_at, self.eye))
+        return norm(np.subtract(self.look_at, self.eye))
 
     def pose(self, time: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         eye0, look0 = np.array(self.eye), np.array(self.look_at)
@@ -338,16 +138,6 @@ class Camera:
             raise SceneError("up is parallel to the viewing direction", "up")
         u = u / np.linalg.norm(u)
         return u, np.cross(w, u), w
-
-    def witness_point(self, i: float, j: float, time: float = 0.0) -> np.ndarray:
-        """World position of raster point (i, j) on the image plane (j counted from the top)."""
-        u, v, w = self.basis(time)
-        eye, _ = self.pose(time)
-        top = self.distance * math.tan(math.radians(self.fov) / 2.0)
-        right = top * self.aspect
-        us = -right + 2.0 * right * i / self.width
-        vs = top - 2.0 * top * j / self.height
-        return eye + us * u + vs * v - self.distance * w
 
 
 # --- materials -----------------------------------------------------------------------------
@@ -374,31 +164,16 @@ class Material:
     frosted_exponent: float = 0.0  # lobe exponent around the refracted direction; 0 is clear glass
 
     def __post_init__(self):
-        _set(self, "kd", as_rgb(self.kd, "kd"))
-        _set(self, "ka", self.kd if self.ka is None else as_rgb(self.ka, "ka"))
-        _set(self, "ks", as_rgb(self.ks, "ks"))
-        _set(self, "p", as_float(self.p, "p", minimum=0.0))
-        _set(self, "mirror", as_rgb(self.mirror, "mirror"))
-        _set(self, "transparency", as_rgb(self.transparency, "transparency"))
-        _set(self, "ior", as_float(self.ior, "ior", minimum=0.0, strict_min=True))
-        _set(self, "fresnel", as_choice(self.fresnel, "fresnel", FRESNEL_MODES))
-        _set(self, "glossy_exponent", as_float(self.glossy_exponent, "glossy_exponent", minimum=0.0))
-        _set(self, "frosted_exponent", as_float(self.frosted_exponent, "frosted_exponent", minimum=0.0))
-
-    @property
-    def reflects(self) -> bool:
-        return any(self.mirror) or (self.refracts and self.fresnel != "none")
-
-    @property
-    def refracts(self) -> bool:
-        return any(self.transparency)
-
-    @property
-    def glossy(self) -> bool:
-        # a transparent material reflects by total internal reflection even without mirror or
-        # Fresnel, and those reflections use the glossy lobe too
-        return ((self.reflects or self.refracts) and self.glossy_exponent > 0) or \
-            (self.refracts and self.frosted_exponent > 0)
+        set_field(self, "kd", as_rgb(self.kd, "kd"))
+        set_field(self, "ka", self.kd if self.ka is None else as_rgb(self.ka, "ka"))
+        set_field(self, "ks", as_rgb(self.ks, "ks"))
+        set_field(self, "p", as_float(self.p, "p", minimum=0.0))
+        set_field(self, "mirror", as_rgb(self.mirror, "mirror"))
+        set_field(self, "transparency", as_rgb(self.transparency, "transparency"))
+        set_field(self, "ior", as_float(self.ior, "ior", minimum=0.0, strict_min=True))
+        set_field(self, "fresnel", as_choice(self.fresnel, "fresnel", FRESNEL_MODES))
+        set_field(self, "glossy_exponent", as_float(self.glossy_exponent, "glossy_exponent", minimum=0.0))
+        set_field(self, "frosted_exponent", as_float(self.frosted_exponent, "frosted_exponent", minimum=0.0))
 
 
 DEFAULT_MATERIAL = "default"
@@ -422,13 +197,13 @@ class Sphere:
     keyframes: tuple = ()  # animation: [{time, center}, ...]
 
     def __post_init__(self):
-        _set(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("center",)))
-        _set(self, "center", as_vec3(self.center, "center"))
-        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("center",)))
+        set_field(self, "center", as_vec3(self.center, "center"))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
         _check_material(self)
         if self.center_end is not None:
-            _set(self, "center_end", as_vec3(self.center_end, "center_end"))
-        _set(self, "transform", as_transform(self.transform, "transform"))
+            set_field(self, "center_end", as_vec3(self.center_end, "center_end"))
+        set_field(self, "transform", as_transform(self.transform, "transform"))
         if self.transform is not None and self.transform.uniform_scale is None:
             raise SceneError("a sphere takes only a uniform positive scale (use a mesh for an ellipsoid)",
                              "transform.scale")
@@ -450,16 +225,16 @@ class Plane:
     transform: Transform | None = None
 
     def __post_init__(self):
-        _set(self, "point", as_vec3(self.point, "point"))
-        _set(self, "normal", as_direction(self.normal, "normal"))
+        set_field(self, "point", as_vec3(self.point, "point"))
+        set_field(self, "normal", as_direction(self.normal, "normal"))
         _check_material(self)
-        _set(self, "transform", as_transform(self.transform, "transform"))
+        set_field(self, "transform", as_transform(self.transform, "transform"))
 
     def world(self) -> tuple[Vec3, Vec3]:
         p, n = self.point, self.normal
         if self.transform is not None:
             p, n = self.transform.apply_point(p), self.transform.apply_normal(n)
-        return p, tuple(c / _norm(n) for c in n)  # type: ignore
+        return p, tuple(c / norm(n) for c in n)  # type: ignore
 
 
 @dataclass(frozen=True)
@@ -473,12 +248,12 @@ class Rectangle:
     transform: Transform | None = None
 
     def __post_init__(self):
-        _set(self, "corner", as_vec3(self.corner, "corner"))
-        _set(self, "edge1", as_direction(self.edge1, "edge1"))
-        _set(self, "edge2", as_direction(self.edge2, "edge2"))
+        set_field(self, "corner", as_vec3(self.corner, "corner"))
+        set_field(self, "edge1", as_direction(self.edge1, "edge1"))
+        set_field(self, "edge2", as_direction(self.edge2, "edge2"))
         _check_material(self)
-        _set(self, "transform", as_transform(self.transform, "transform"))
-        if _norm(np.cross(self.edge1, self.edge2)) <= 1e-12 * _norm(self.edge1) * _norm(self.edge2):
+        set_field(self, "transform", as_transform(self.transform, "transform"))
+        if norm(np.cross(self.edge1, self.edge2)) <= 1e-12 * norm(self.edge1) * norm(self.edge2):
             raise SceneError("edge1 and edge2 are parallel: the rectangle has no area", "edge2")
 
     def world(self) -> tuple[Vec3, Vec3, Vec3]:
@@ -496,9 +271,9 @@ class Disk:
     material: str = DEFAULT_MATERIAL
 
     def __post_init__(self):
-        _set(self, "center", as_vec3(self.center, "center"))
-        _set(self, "normal", as_direction(self.normal, "normal"))
-        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "center", as_vec3(self.center, "center"))
+        set_field(self, "normal", as_direction(self.normal, "normal"))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
         _check_material(self)
 
 
@@ -521,7 +296,7 @@ class Mesh:
     keyframes: tuple = ()  # animation: [{time, translate, rotate, scale}, ...] (instance transform)
 
     def __post_init__(self):
-        _set(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("translate", "rotate", "scale")))
+        set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("translate", "rotate", "scale")))
         if (self.file is None) == (self.vertices is None):
             raise SceneError("give either file or vertices (with faces)", "file")
         if self.file is not None and (not isinstance(self.file, str) or not self.file):
@@ -529,22 +304,22 @@ class Mesh:
         if self.vertices is not None and self.faces is None:
             raise SceneError("inline vertices need faces", "faces")
         _check_material(self)
-        _set(self, "transform", as_transform(self.transform, "transform"))
-        _set(self, "transform_end", as_transform(self.transform_end, "transform_end"))
+        set_field(self, "transform", as_transform(self.transform, "transform"))
+        set_field(self, "transform_end", as_transform(self.transform_end, "transform_end"))
         if not isinstance(self.smooth, bool):
             raise SceneError(f"expected true or false, got {self.smooth!r}", "smooth")
-        _set(self, "degenerate", as_choice(self.degenerate, "degenerate", ("error", "drop")))
+        set_field(self, "degenerate", as_choice(self.degenerate, "degenerate", ("error", "drop")))
         if self.vertices is not None:
-            v, f = _validate_arrays(self.vertices, self.faces)
-            _set(self, "vertices", v)
-            _set(self, "faces", f)
+            v, f = validate_arrays(self.vertices, self.faces)
+            set_field(self, "vertices", v)
+            set_field(self, "faces", f)
 
     @property
     def moves(self) -> bool:
         return self.transform_end is not None and self.transform_end != (self.transform or Transform())
 
 
-def _validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
+def validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
     try:
         v = np.asarray(vertices, dtype=np.float64)
     except (TypeError, ValueError):
@@ -586,14 +361,14 @@ class PointLight:
     falloff: str = "none"  # "none" (the lecture's) or "inverse_square" (I / r^2)
 
     def __post_init__(self):
-        _set(self, "position", as_vec3(self.position, "position"))
-        _set(self, "intensity", as_rgb(self.intensity, "intensity"))
-        _set(self, "falloff", as_choice(self.falloff, "falloff", FALLOFFS))
+        set_field(self, "position", as_vec3(self.position, "position"))
+        set_field(self, "intensity", as_rgb(self.intensity, "intensity"))
+        set_field(self, "falloff", as_choice(self.falloff, "falloff", FALLOFFS))
 
 
 def _area_light_common(obj: Any) -> None:
-    _set(obj, "radiance", as_rgb(obj.radiance, "radiance"))
-    _set(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
+    set_field(obj, "radiance", as_rgb(obj.radiance, "radiance"))
+    set_field(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
 
 
 @dataclass(frozen=True)
@@ -608,14 +383,18 @@ class RectLight:
 
     def __post_init__(self):
         r = Rectangle(self.corner, self.edge1, self.edge2)
-        _set(self, "corner", r.corner)
-        _set(self, "edge1", r.edge1)
-        _set(self, "edge2", r.edge2)
+        set_field(self, "corner", r.corner)
+        set_field(self, "edge1", r.edge1)
+        set_field(self, "edge2", r.edge2)
         _area_light_common(self)
 
     @property
     def area(self) -> float:
-        return _norm(np.cross(self.edge1, self.edge2))
+        return norm(np.cross(self.edge1, self.edge2))
+
+    def shape(self) -> Rectangle:
+        """The surface that emits (an area light is emission on a shape)."""
+        return Rectangle(self.corner, self.edge1, self.edge2)
 
 
 @dataclass(frozen=True)
@@ -628,9 +407,12 @@ class SphereLight:
     samples: int = 1
 
     def __post_init__(self):
-        _set(self, "center", as_vec3(self.center, "center"))
-        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "center", as_vec3(self.center, "center"))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
         _area_light_common(self)
+
+    def shape(self) -> Sphere:
+        return Sphere(self.center, self.radius)
 
 
 @dataclass(frozen=True)
@@ -644,10 +426,13 @@ class DiskLight:
     samples: int = 1
 
     def __post_init__(self):
-        _set(self, "center", as_vec3(self.center, "center"))
-        _set(self, "normal", as_direction(self.normal, "normal"))
-        _set(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "center", as_vec3(self.center, "center"))
+        set_field(self, "normal", as_direction(self.normal, "normal"))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
         _area_light_common(self)
+
+    def shape(self) -> Disk:
+        return Disk(self.center, self.normal, self.radius)
 
 
 # --- render settings and the scene ------------------------------------------------------------
@@ -664,21 +449,25 @@ class RenderSettings:
     clamp: float = 1e20  # each sample's radiance is clamped to this (overflow guard)
 
     def __post_init__(self):
-        _set(self, "spp", as_int(self.spp, "spp", minimum=1, maximum=1 << 20))
-        _set(self, "sampler", as_choice(self.sampler, "sampler", SAMPLERS))
-        _set(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
-        _set(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
-        _set(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0))
+        set_field(self, "spp", as_int(self.spp, "spp", minimum=1, maximum=1 << 20))
+        set_field(self, "sampler", as_choice(self.sampler, "sampler", SAMPLERS))
+        set_field(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
+        set_field(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
+        set_field(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0))
         t_max = self.t_max
         if isinstance(t_max, (int, float)) and not isinstance(t_max, bool) and t_max == math.inf:
-            _set(self, "t_max", math.inf)
+            set_field(self, "t_max", math.inf)
         else:
-            _set(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True))
+            set_field(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True))
         if self.t_max <= self.t_min:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
-        _set(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
+        set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
 
 
+# the one list of each: scene-file type names, the classes behind them (the loader, Scene's
+# validation and the package's exports read these)
+SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
+LIGHT_TYPES = {"point": PointLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
 Shape = Sphere | Plane | Rectangle | Disk | Mesh
 Light = PointLight | RectLight | SphereLight | DiskLight
 
@@ -707,8 +496,8 @@ class Scene:
         for name, cls in (("camera", Camera), ("render", RenderSettings), ("animation", Animation)):
             if not isinstance(getattr(self, name), cls):
                 raise SceneError(f"expected a {cls.__name__}, got {type(getattr(self, name)).__name__}", name)
-        _set(self, "shapes", tuple(self.shapes))
-        _set(self, "lights", tuple(self.lights))
+        set_field(self, "shapes", tuple(self.shapes))
+        set_field(self, "lights", tuple(self.lights))
         mats = dict(self.materials)
         for key, m in mats.items():
             if not isinstance(key, str) or not key:
@@ -716,19 +505,19 @@ class Scene:
             if not isinstance(m, Material):
                 raise SceneError(f"expected a Material, got {type(m).__name__}", f"materials.{key}")
         mats.setdefault(DEFAULT_MATERIAL, Material())
-        _set(self, "materials", mats)
+        set_field(self, "materials", mats)
         for i, s in enumerate(self.shapes):
-            if not isinstance(s, (Sphere, Plane, Rectangle, Disk, Mesh)):
-                raise SceneError(f"expected a shape (Sphere, Plane, Rectangle, Disk, Mesh), got {type(s).__name__}",
-                                 f"shapes[{i}]")
+            if not isinstance(s, tuple(SHAPE_TYPES.values())):
+                names = ", ".join(c.__name__ for c in SHAPE_TYPES.values())
+                raise SceneError(f"expected a shape ({names}), got {type(s).__name__}", f"shapes[{i}]")
             if s.material not in mats:
                 known = ", ".join(sorted(mats))
                 raise SceneError(f"unknown material {s.material!r} (known: {known})", f"shapes[{i}].material")
         for i, light in enumerate(self.lights):
-            if not isinstance(light, (PointLight, RectLight, SphereLight, DiskLight)):
+            if not isinstance(light, tuple(LIGHT_TYPES.values())):
                 raise SceneError(f"expected a light, got {type(light).__name__}", f"lights[{i}]")
-        _set(self, "ambient", as_rgb(self.ambient, "ambient"))
-        _set(self, "background", as_rgb(self.background, "background"))
+        set_field(self, "ambient", as_rgb(self.ambient, "ambient"))
+        set_field(self, "background", as_rgb(self.background, "background"))
 
     def replace(self, **changes: Any) -> "Scene":
         """A copy with some fields changed (``camera``, ``render`` ...)."""
@@ -741,6 +530,3 @@ class Scene:
     def with_camera(self, **changes: Any) -> "Scene":
         return replace(self, camera=replace(self.camera, **changes))
 
-
-def field_names(cls: type) -> list[str]:
-    return [f.name for f in fields(cls)]

@@ -27,13 +27,7 @@ from dataclasses import fields
 from typing import Any, Mapping
 
 from ..errors import SceneError
-from .description import (
-    Animation, Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings,
-    Scene, Sphere, SphereLight,
-)
-
-SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
-LIGHT_TYPES = {"point": PointLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
+from .description import LIGHT_TYPES, SHAPE_TYPES, Animation, Camera, Material, RenderSettings, Scene
 TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights", "animation"}
 WORLD_FIELDS = {"ambient", "background"}
 

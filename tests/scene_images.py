@@ -1,0 +1,36 @@
+"""The scenes/ files rendered small: the images a layout change must leave bit-identical.
+
+``python -m tests.scene_images --save`` writes them to tests/data/scene_images.npz (run it only
+when the physics changes on purpose, and say so in the commit); ``test_layout.py`` compares.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import sys
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DATA = ROOT / "tests" / "data" / "scene_images.npz"
+WIDTH, SPP = 48, 2
+
+
+def render_all() -> dict[str, np.ndarray]:
+    import warprt
+
+    out = {}
+    for path in sorted((ROOT / "scenes").glob("*.toml")):
+        scene = warprt.load_scene(str(path))
+        cam = scene.camera
+        small = dataclasses.replace(cam, width=WIDTH, height=max(1, round(WIDTH * cam.height / cam.width)))
+        out[path.stem] = warprt.render(scene.replace(camera=small), spp=SPP, seed=7, progress=False)
+    return out
+
+
+if __name__ == "__main__":
+    if "--save" in sys.argv:
+        DATA.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(DATA, **render_all())
+        print(f"wrote {DATA.relative_to(ROOT)}")

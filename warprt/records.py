@@ -1,0 +1,224 @@
+"""Device records: the structs the kernels read, the shape-kind tags, and ``Features``.
+
+Every table on the device is an array of records (Warp passes structs to device functions by
+value, so ``SceneData`` holds a dozen array headers rather than one array per field).
+``features_of(scene)`` is the one place that decides which kernel code a scene needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+import warp as wp
+
+from .scene.description import Material, Mesh, Scene, Sphere
+
+# shape kinds, as reported by ray queries and id AOVs, and as area lights name their surface
+KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
+FRESNEL_IDS = {"none": 0, "schlick": 1, "exact": 2}
+
+
+@dataclass(frozen=True)
+class Features:
+    """What a scene uses; each flag adds code to the render kernel."""
+
+    meshes: bool = False  # triangle meshes (wp.Mesh BVH queries)
+    area_lights: bool = False  # rectangle / sphere / disk emitters and soft shadows
+    secondary: bool = False  # mirror reflection or refraction: rays spawned at hits
+    refraction: bool = False  # transparent materials (refraction, TIR, Fresnel, coloured shadows)
+    glossy: bool = False  # glossy reflection or frosted refraction lobes
+    lens: bool = False  # thin-lens depth of field
+    motion: bool = False  # moving objects or camera (motion blur)
+
+    @classmethod
+    def full(cls) -> "Features":
+        return cls(**{f.name: True for f in fields(cls)})
+
+    def union(self, other: "Features") -> "Features":
+        return Features(**{f.name: getattr(self, f.name) or getattr(other, f.name) for f in fields(self)})
+
+    @property
+    def key(self) -> str:
+        on = [f.name for f in fields(self) if getattr(self, f.name)]
+        return "+".join(on) if on else "basic"
+
+
+def _reflects(m: Material) -> bool:
+    return any(m.mirror) or (_refracts(m) and m.fresnel != "none")
+
+
+def _refracts(m: Material) -> bool:
+    return any(m.transparency)
+
+
+def _glossy(m: Material) -> bool:
+    # a transparent material reflects by total internal reflection even without mirror or
+    # Fresnel, and those reflections use the glossy lobe too
+    return ((_reflects(m) or _refracts(m)) and m.glossy_exponent > 0) or (_refracts(m) and m.frosted_exponent > 0)
+
+
+def features_of(scene: Scene) -> Features:
+    """The kernel features ``scene`` needs (a pure function of the description)."""
+    used = [scene.materials[name] for name in {s.material for s in scene.shapes}]
+    return Features(
+        meshes=any(isinstance(s, Mesh) for s in scene.shapes),
+        area_lights=any(hasattr(light, "shape") for light in scene.lights),
+        secondary=any(_reflects(m) or _refracts(m) for m in used),
+        refraction=any(_refracts(m) for m in used),
+        glossy=any(_glossy(m) for m in used),
+        lens=scene.camera.aperture > 0.0,
+        motion=scene.camera.moves or any(_moves(s) for s in scene.shapes),
+    )
+
+
+def _moves(shape) -> bool:
+    if isinstance(shape, Sphere):
+        c0, c1, _ = shape.world()
+        return c0 != c1
+    return isinstance(shape, Mesh) and shape.moves
+
+
+# --- device records ----------------------------------------------------------------------------
+
+
+@wp.struct
+class SphereRec:
+    c0: wp.vec3  # centre at time 0
+    c1: wp.vec3  # centre at time 1
+    r: float
+    mat: int
+
+
+@wp.struct
+class PlaneRec:
+    p: wp.vec3
+    n: wp.vec3  # unit normal
+    mat: int
+
+
+@wp.struct
+class RectRec:
+    c: wp.vec3  # corner
+    e1: wp.vec3
+    e2: wp.vec3
+    n: wp.vec3  # unit normal, along e1 x e2
+    mat: int
+
+
+@wp.struct
+class DiskRec:
+    c: wp.vec3
+    n: wp.vec3  # unit normal
+    r: float
+    mat: int
+
+
+@wp.struct
+class InstRec:
+    mesh: wp.uint64  # wp.Mesh id of the asset
+    pos0: wp.vec3  # pose at time 0: translation, rotation, scale
+    rot0: wp.quat
+    scl0: wp.vec3
+    pos1: wp.vec3  # pose at time 1
+    rot1: wp.quat
+    scl1: wp.vec3
+    mat: int
+    smooth: int
+    nrm_off: int  # first vertex normal of the asset in SceneData.normals
+
+
+@wp.struct
+class MatRec:
+    ka: wp.vec3
+    kd: wp.vec3
+    ks: wp.vec3
+    p: float
+    km: wp.vec3
+    kt: wp.vec3
+    ior: float
+    fresnel: int
+    gloss: float
+    frost: float
+    emit: wp.vec3  # emitted radiance (area lights' own shapes)
+
+
+@wp.struct
+class PointLightRec:
+    pos: wp.vec3
+    intensity: wp.vec3  # I
+    inv_sq: int  # 1: inverse-square falloff
+
+
+@wp.struct
+class AreaLightRec:
+    kind: int  # KIND_* of the emitting shape
+    shape: int  # its row in that kind's table
+    le: wp.vec3  # radiance
+    samples: int
+
+
+@wp.struct
+class SceneData:
+    """Every table as an array of records. Warp passes structs to device functions by value, so
+    this struct is kept small: a dozen array headers, not one per field."""
+
+    n_spheres: int
+    spheres: wp.array(dtype=SphereRec)
+    sph_bvh: wp.uint64  # BVH over the spheres' (swept) bounds, 0 when they are few
+    n_planes: int
+    planes: wp.array(dtype=PlaneRec)
+    n_rects: int
+    rects: wp.array(dtype=RectRec)
+    n_disks: int
+    disks: wp.array(dtype=DiskRec)
+    n_inst: int
+    insts: wp.array(dtype=InstRec)
+    normals: wp.array(dtype=wp.vec3)
+    mats: wp.array(dtype=MatRec)
+    n_plights: int
+    plights: wp.array(dtype=PointLightRec)
+    n_alights: int
+    alights: wp.array(dtype=AreaLightRec)
+    ambient: wp.vec3
+    background: wp.vec3
+
+
+@wp.struct
+class CameraData:
+    eye0: wp.vec3
+    eye1: wp.vec3
+    look0: wp.vec3
+    look1: wp.vec3
+    up: wp.vec3
+    top: float  # half height of the image plane at distance D
+    right: float  # half width
+    dist: float  # D
+    lens_radius: float
+    focus: float
+    t_open: float
+    t_close: float
+    width: int
+    height: int
+
+
+@wp.struct
+class RenderParams:
+    spp: int  # planned samples per pixel (strata count)
+    sampler: int
+    seed: wp.uint32
+    max_depth: int
+    min_weight: float
+    t_min: float
+    t_max: float
+    clamp: float
+    moving: int  # 1 when something in the scene moves: sample time (runtime guard for general kernels)
+
+
+def table(struct, rows: list[dict], device) -> "wp.array":
+    """An array of ``struct`` records from dicts of field values (one zero record when empty)."""
+    data = np.zeros(max(len(rows), 1), dtype=struct.numpy_dtype())
+    for name in data.dtype.names:
+        if rows:
+            data[name] = [row[name] for row in rows]
+    return wp.array(data, dtype=struct, device=device)

@@ -1,0 +1,120 @@
+"""Coercion of user values into validated fields: each helper raises :class:`warprt.SceneError`
+naming the field it was given."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import SceneError
+
+Vec3 = tuple[float, float, float]
+RGB = tuple[float, float, float]
+
+
+def finite(x: float, name: str) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise SceneError(f"expected a number, got {x!r}", name)
+    x = float(x)
+    if not math.isfinite(x):
+        raise SceneError(f"must be finite, got {x}", name)
+    return x
+
+
+def as_float(x: Any, name: str, *, minimum: float | None = None, maximum: float | None = None,
+             strict_min: bool = False) -> float:
+    x = finite(x, name)
+    if minimum is not None and (x < minimum or (strict_min and x == minimum)):
+        raise SceneError(f"must be {'>' if strict_min else '>='} {minimum:g}, got {x:g}", name)
+    if maximum is not None and x > maximum:
+        raise SceneError(f"must be <= {maximum:g}, got {x:g}", name)
+    return x
+
+
+def as_int(x: Any, name: str, *, minimum: int | None = None, maximum: int | None = None) -> int:
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
+        if isinstance(x, float) and x.is_integer():
+            x = int(x)
+        else:
+            raise SceneError(f"expected an integer, got {x!r}", name)
+    x = int(x)
+    if minimum is not None and x < minimum:
+        raise SceneError(f"must be >= {minimum}, got {x}", name)
+    if maximum is not None and x > maximum:
+        raise SceneError(f"must be <= {maximum}, got {x}", name)
+    return x
+
+
+def as_vec3(x: Any, name: str) -> Vec3:
+    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
+        raise SceneError(f"expected three numbers [x, y, z], got {x!r}", name)
+    return tuple(finite(v, f"{name}[{i}]") for i, v in enumerate(x))  # type: ignore[return-value]
+
+
+def as_direction(x: Any, name: str) -> Vec3:
+    v = as_vec3(x, name)
+    n = math.sqrt(sum(c * c for c in v))
+    if n == 0.0 or not math.isfinite(n):
+        raise SceneError("must be a non-zero vector", name)
+    return v
+
+
+def as_rgb(x: Any, name: str, *, maximum: float | None = None) -> RGB:
+    """A colour: one number (grey) or three, each finite and >= 0."""
+    if isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool):
+        c = as_float(x, name, minimum=0.0, maximum=maximum)
+        return (c, c, c)
+    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
+        raise SceneError(f"expected a colour: one number or three [r, g, b], got {x!r}", name)
+    return tuple(as_float(v, f"{name}[{i}]", minimum=0.0, maximum=maximum) for i, v in enumerate(x))  # type: ignore
+
+
+def as_choice(x: Any, name: str, choices: Sequence[str]) -> str:
+    if not isinstance(x, str) or x not in choices:
+        raise SceneError(f"must be one of {', '.join(repr(c) for c in choices)}, got {x!r}", name)
+    return x
+
+
+def set_field(obj: Any, name: str, value: Any) -> None:
+    """Set a field of a frozen dataclass (from its own ``__post_init__``)."""
+    object.__setattr__(obj, name, value)
+
+
+def norm(v: Sequence[float]) -> float:
+    return math.sqrt(sum(c * c for c in v))
+
+
+def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
+    """Keyframes: a list of tables, each with ``time`` (seconds, strictly increasing) and some of
+    ``allowed`` (vectors; ``scale`` may be one number). Values missing from a key are taken
+    from the object's own fields."""
+    if x is None or (isinstance(x, (list, tuple)) and len(x) == 0):
+        return ()
+    if not isinstance(x, (list, tuple)):
+        raise SceneError(f"expected a list of tables with time and {', '.join(allowed)}, got {x!r}", name)
+    out, last = [], -math.inf
+    for i, key in enumerate(x):
+        where = f"{name}[{i}]"
+        if not isinstance(key, Mapping):
+            raise SceneError(f"expected a table, got {key!r}", where)
+        unknown = sorted(set(key) - {"time", *allowed})
+        if unknown:
+            raise SceneError(f"unknown field(s) {', '.join(unknown)}; expected time and some of: {', '.join(allowed)}",
+                             where)
+        if "time" not in key:
+            raise SceneError("every keyframe needs a time", f"{where}.time")
+        t = as_float(key["time"], f"{where}.time")
+        if t <= last:
+            raise SceneError(f"keyframe times must increase, got {t:g} after {last:g}", f"{where}.time")
+        last = t
+        k = {"time": t}
+        for f in allowed:
+            if f in key:
+                v = key[f]
+                if f == "scale" and isinstance(v, (int, float)) and not isinstance(v, bool):
+                    v = (v, v, v)
+                k[f] = as_vec3(v, f"{where}.{f}")
+        out.append(k)
+    return tuple(out)

@@ -1,0 +1,152 @@
+"""The analytic shape kinds, one entry each: description class, tag, device table and record,
+how a description becomes a record, and (for shapes that can emit) how to sample a point of
+it as seen from a shading point.
+
+An area light is emission on a shape: ``RectLight``, ``SphereLight`` and ``DiskLight`` give
+their surface through ``.shape()``, the builder puts that surface in its kind's table with an
+emitting material, and an ``AreaLightRec`` names (kind tag, row). Light code never looks at
+the kind: ``sample_emitter`` below does. Intersection routines live in ``geometry``; the loops
+over each kind's table in ``trace``. Meshes are instances of ``wp.Mesh`` assets, built by
+``build`` (see ``meshes``), not rows of this table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from .geometry import intersect_sphere, max_abs
+from .records import (
+    KIND_DISK, KIND_PLANE, KIND_RECT, KIND_SPHERE, DiskRec, PlaneRec, RectRec, SceneData, SphereRec,
+)
+from .sampling import frame_from_z, square_to_cone, square_to_disk
+from .scene.description import Disk, Plane, Rectangle, Sphere
+
+
+def _unit(v) -> tuple[float, float, float]:
+    v = np.asarray(v, dtype=np.float64)
+    return tuple(float(c) for c in v / np.linalg.norm(v))  # type: ignore[return-value]
+
+
+def _sphere_row(s: Sphere, mat: int) -> dict:
+    c0, c1, r = s.world()
+    return dict(c0=c0, c1=c1, r=r, mat=mat)
+
+
+def _plane_row(s: Plane, mat: int) -> dict:
+    p, n = s.world()
+    return dict(p=p, n=n, mat=mat)
+
+
+def _rect_row(s: Rectangle, mat: int) -> dict:
+    c, e1, e2 = s.world()
+    return dict(c=c, e1=e1, e2=e2, n=_unit(np.cross(e1, e2)), mat=mat)
+
+
+def _disk_row(s: Disk, mat: int) -> dict:
+    return dict(c=s.center, n=_unit(s.normal), r=s.radius, mat=mat)
+
+
+@dataclass(frozen=True)
+class ShapeKind:
+    tag: int  # KIND_*: reported by ray queries and id AOVs, named by area lights
+    cls: type  # the description class
+    table: str  # the SceneData field holding the rows (its count is ``"n_" + table``)
+    record: type  # the row's wp.struct
+    row: Callable[[object, int], dict]  # description (world space) and material index -> record fields
+
+
+KINDS = (
+    ShapeKind(KIND_SPHERE, Sphere, "spheres", SphereRec, _sphere_row),
+    ShapeKind(KIND_PLANE, Plane, "planes", PlaneRec, _plane_row),
+    ShapeKind(KIND_RECT, Rectangle, "rects", RectRec, _rect_row),
+    ShapeKind(KIND_DISK, Disk, "disks", DiskRec, _disk_row),
+)
+BY_CLASS = {k.cls: k for k in KINDS}
+BY_TAG = {k.tag: k for k in KINDS}
+
+
+# --- sampling an emitting shape -----------------------------------------------------------------
+
+
+@wp.struct
+class EmitterSample:
+    ok: int  # 0: no sample (p inside an emitting sphere, behind a one-sided emitter, degenerate)
+    y: wp.vec3  # the point on the emitter
+    l: wp.vec3  # unit direction from p to y
+    dist: float  # |y - p|
+    inv_pdf: float  # 1 / (solid-angle density of l)
+    mag: float  # magnitude bound of y's coordinates (a shadow ray stops short of y by its offset)
+
+
+@wp.func(inline=True)
+def sample_sphere_emitter(rec: SphereRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+    """Uniform in the cone of directions the sphere subtends from p."""
+    e = EmitterSample()
+    c = rec.c0
+    r = rec.r
+    to_c = c - p
+    dc = wp.length(to_c)
+    if dc <= r or r <= 0.0:
+        return e
+    s = r / dc
+    omc = s * s / (1.0 + wp.sqrt(wp.max(0.0, 1.0 - s * s)))  # 1 - cos θmax
+    l = frame_from_z(to_c / dc, square_to_cone(u, omc))
+    t = intersect_sphere(p, l, c, r, 0.0, 3.0e38)
+    if t < 0.0:
+        t = wp.dot(to_c, l)  # grazing the silhouette: use the tangent point
+    e.ok = 1
+    e.dist = t
+    e.l = l
+    e.y = p + l * t
+    e.inv_pdf = 2.0 * wp.pi * omc
+    e.mag = max_abs(c) + r
+    return e
+
+
+@wp.func(inline=True)
+def planar_emitter(y: wp.vec3, ln: wp.vec3, area: float, mag: float, p: wp.vec3) -> EmitterSample:
+    """A point y drawn uniformly by area on a one-sided planar emitter of normal ln, seen from p."""
+    e = EmitterSample()
+    to_y = y - p
+    dist = wp.length(to_y)
+    if dist <= 0.0 or area <= 0.0:
+        return e
+    l = to_y / dist
+    cos_l = -wp.dot(ln, l)
+    if cos_l <= 0.0:
+        return e  # the back of a one-sided emitter
+    e.ok = 1
+    e.y = y
+    e.l = l
+    e.dist = dist
+    e.inv_pdf = area * cos_l / (dist * dist)
+    e.mag = mag
+    return e
+
+
+@wp.func(inline=True)
+def sample_rect_emitter(rec: RectRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+    y = rec.c + u[0] * rec.e1 + u[1] * rec.e2
+    area = wp.length(wp.cross(rec.e1, rec.e2))
+    return planar_emitter(y, rec.n, area, max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2), p)
+
+
+@wp.func(inline=True)
+def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+    dsk = square_to_disk(u) * rec.r
+    y = rec.c + frame_from_z(rec.n, wp.vec3(dsk[0], dsk[1], 0.0))
+    return planar_emitter(y, rec.n, wp.pi * rec.r * rec.r, max_abs(rec.c) + rec.r, p)
+
+
+@wp.func(inline=True)
+def sample_emitter(scene: SceneData, kind: int, row: int, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+    """A point of the emitting shape (kind, row) for shading point p, from the 2D sample u."""
+    if kind == KIND_SPHERE:
+        return sample_sphere_emitter(scene.spheres[row], p, u)
+    if kind == KIND_RECT:
+        return sample_rect_emitter(scene.rects[row], p, u)
+    return sample_disk_emitter(scene.disks[row], p, u)

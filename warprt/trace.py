@@ -1,0 +1,429 @@
+"""Tracing: the nearest hit over every shape (``closest_hit``) and the light passing along a
+shadow segment (``transmittance``, ``shadow``), with mesh instances posed at the ray's time.
+
+``make_trace(features)`` builds these device functions for one :class:`Features` value (code a
+scene does not use is removed with ``wp.static``); the render kernel, the AOV kernel and the
+ray-query kernels all call the same ones. Functions that need no feature switch are defined at
+module level.
+
+Inlining: Warp passes structs to functions by value, and ``SceneData`` is about 700 bytes. The
+hot functions (``closest_hit``, ``transmittance``, ``shadow`` and the small helpers they call)
+are force-inlined (``@wp.func(inline=True)``): left to the C++ compiler, a kernel with the mesh,
+area-light and secondary-ray code grew past its inlining budget, ``closest_hit`` became a real
+call that copied the scene for every ray. The mesh helpers stay compiler-decided (marking them
+``inline=False`` made mesh-heavy scenes slower: the copy per call again).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import warp as wp
+
+from ._warp import build_once
+from .geometry import (
+    SPAWN_REL, abs3, disk_extent, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs,
+    quat_rotate_mag, refine_on_plane, refine_on_sphere, spawn_offset, sphere_roots,
+)
+from .records import KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE, Features, SceneData
+
+TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
+
+
+@wp.struct
+class Hit:
+    t: float  # -1 for a miss
+    kind: int  # KIND_* of the shape hit
+    index: int  # index in that shape kind's table
+    p: wp.vec3  # hit point refined onto the surface
+    ng: wp.vec3  # unit geometric normal (not flipped)
+    ns: wp.vec3  # unit shading normal (not flipped)
+    mag: wp.vec3  # per-component magnitude bound of the coordinates p was computed from (spawn offsets)
+    mat: int
+
+
+@wp.struct
+class MeshHit:
+    t: float
+    index: int  # instance, -1 for none
+    face: int
+    u: float
+    v: float
+
+
+@wp.struct
+class Pose:
+    """A mesh instance's transform at one time: scale, then rotate, then translate."""
+
+    pos: wp.vec3
+    rot: wp.quat
+    scl: wp.vec3
+
+
+@wp.func(inline=True)
+def to_object(pose: Pose, p: wp.vec3) -> wp.vec3:
+    return wp.cw_div(wp.quat_rotate_inv(pose.rot, p - pose.pos), pose.scl)
+
+
+@wp.func(inline=True)
+def dir_to_object(pose: Pose, d: wp.vec3) -> wp.vec3:
+    return wp.cw_div(wp.quat_rotate_inv(pose.rot, d), pose.scl)
+
+
+@wp.func(inline=True)
+def to_world(pose: Pose, p: wp.vec3) -> wp.vec3:
+    return wp.quat_rotate(pose.rot, wp.cw_mul(p, pose.scl)) + pose.pos
+
+
+@wp.func(inline=True)
+def normal_to_world(pose: Pose, n: wp.vec3) -> wp.vec3:
+    """Not normalised."""
+    return wp.quat_rotate(pose.rot, wp.cw_div(n, pose.scl))
+
+
+@wp.func
+def leaves_face(mid: wp.uint64, face: int, o: wp.vec3, d: wp.vec3) -> bool:
+    """True when the ray (o, d) (object space) cannot meet the plane of triangle ``face`` at t > 0:
+    it starts on that plane, or on the side it moves away from. Warp's triangle test works in
+    coordinates relative to the ray origin and is not sign-exact for an origin within its
+    rounding (ulps of the triangle's coordinates) of the plane: a ray leaving a triangle 800 units
+    wide can "hit" it again at t ~ 1e-4. The plane test here is exact for axis-aligned triangles
+    and otherwise errs far less than the spawn offset."""
+    mesh = wp.mesh_get(mid)
+    v0 = mesh.points[mesh.indices[face * 3]]
+    n = wp.mesh_eval_face_normal(mid, face)
+    return wp.dot(n, o - v0) * wp.dot(n, d) >= 0.0
+
+
+@wp.func
+def mesh_first_hit(mid: wp.uint64, o: wp.vec3, d: wp.vec3, t_max: float) -> MeshHit:
+    """Nearest hit of mesh ``mid`` along (o, d) (object space) in (0, t_max) on a triangle the ray
+    really approaches (see ``leaves_face``); ``index`` 0 for a hit, -1 for none. A rejected hit
+    (or one exactly at the origin) is stepped over by its rounding and the query repeated."""
+    r = MeshHit()
+    r.index = -1
+    t0 = float(0.0)
+    for _k in range(4):
+        q = wp.mesh_query_ray(mid, o + d * t0, d, t_max - t0)
+        if not q.result:
+            return r
+        if q.t > 0.0 and not leaves_face(mid, q.face, o, d):
+            r.index = 0
+            r.t = t0 + q.t
+            r.face = q.face
+            r.u = q.u
+            r.v = q.v
+            return r
+        mesh = wp.mesh_get(mid)
+        v0 = mesh.points[mesh.indices[q.face * 3]]
+        t0 = t0 + wp.max(q.t, 0.0) + spawn_offset(max_abs(o) + max_abs(v0)) / wp.length(d)
+        if t0 >= t_max:
+            return r
+    return r
+
+
+@build_once
+def make_trace(F: Features) -> SimpleNamespace:
+    """The tracing device functions for one feature set (built once per process)."""
+
+    @wp.func
+    def instance_pose(scene: SceneData, i: int, time: float) -> Pose:
+        """Instance i's pose at ``time`` (poses given at times 0 and 1; rotations by slerp)."""
+        pose = Pose()
+        pose.pos = scene.insts[i].pos0
+        pose.rot = scene.insts[i].rot0
+        pose.scl = scene.insts[i].scl0
+        if wp.static(F.motion):
+            pose.pos = pose.pos + (scene.insts[i].pos1 - pose.pos) * time
+            pose.rot = wp.quat_slerp(pose.rot, scene.insts[i].rot1, time)
+            pose.scl = pose.scl + (scene.insts[i].scl1 - pose.scl) * time
+        return pose
+
+    @wp.func(inline=True)
+    def sphere_center(scene: SceneData, i: int, time: float) -> wp.vec3:
+        c = scene.spheres[i].c0
+        if wp.static(F.motion):
+            c = c + (scene.spheres[i].c1 - c) * time
+        return c
+
+    @wp.func
+    def mesh_nearest(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> MeshHit:
+        """Nearest triangle hit over all mesh instances in (t_min, t_max); index -1 for none."""
+        best = float(t_max)
+        r = MeshHit()
+        r.index = -1
+        start = o + d * t_min
+        for i in range(scene.n_inst):
+            pose = instance_pose(scene, i, time)
+            # (a hit exactly at t_min is outside the open range (t_min, t_max): mesh_first_hit
+            # looks beyond it, as it does past a ray's own surface)
+            q = mesh_first_hit(scene.insts[i].mesh, to_object(pose, start), dir_to_object(pose, d), best - t_min)
+            if q.index >= 0:
+                if q.t + t_min < best:
+                    best = q.t + t_min
+                    r.t = best
+                    r.index = i
+                    r.face = q.face
+                    r.u = q.u
+                    r.v = q.v
+        return r
+
+    @wp.func
+    def mesh_details(scene: SceneData, h_in: Hit, o: wp.vec3, d: wp.vec3, face: int, bu: float, bv: float,
+                     time: float) -> Hit:
+        """h_in with the point, normals and material of its mesh hit filled in.
+
+        The point is taken, in object space, from the barycentrics or from the ray's crossing of
+        the triangle's plane, whichever was computed from smaller coordinates (the barycentric
+        point of a triangle 1e4 wide is off by ~1e-3 along the surface; the ray point seen from a
+        far camera likewise), and then projected onto that plane."""
+        h = h_in
+        index = h.index
+        mid = scene.insts[index].mesh
+        pose = instance_pose(scene, index, time)
+        mesh = wp.mesh_get(mid)
+        v0 = mesh.points[mesh.indices[face * 3 + 0]]
+        v1 = mesh.points[mesh.indices[face * 3 + 1]]
+        v2 = mesh.points[mesh.indices[face * 3 + 2]]
+        tri_mag = wp.max(abs3(v0), wp.max(abs3(v1), abs3(v2)))
+        n_obj = wp.mesh_eval_face_normal(mid, face)
+        p_obj = wp.mesh_eval_position(mid, face, bu, bv)
+        if max_abs(o) + h.t < max_abs(wp.cw_mul(tri_mag, pose.scl)) + max_abs(pose.pos):
+            # the ray met the triangle's plane (in object space, like intersect_plane: exact for
+            # an axis-aligned triangle) where Warp's t says, give or take its rounding
+            o_obj = to_object(pose, o)
+            d_obj = dir_to_object(pose, d)
+            # (Warp's own t is off by up to ~0.3% on a triangle 1e4 times wider than the ray
+            # length; the plane's t is used unless the ray grazes the plane)
+            denom = wp.dot(n_obj, d_obj)
+            if wp.abs(denom) > 1.0e-2 * wp.length(d_obj):
+                t_plane = wp.dot(n_obj, v0 - o_obj) / denom
+                if wp.abs(t_plane - h.t) <= 1.0e-2 * h.t:
+                    p_obj = o_obj + d_obj * t_plane
+                    h.t = t_plane
+        p_obj = refine_on_plane(p_obj, v0, n_obj)
+        h.p = to_world(pose, p_obj)
+        # error bound: the triangle's coordinates (its plane), carried through scale and rotation,
+        # plus the translation and the point itself (the rounding of the transform and of the
+        # next ray's way back into object space)
+        m_obj = wp.cw_mul(wp.max(tri_mag, abs3(p_obj)), abs3(pose.scl))
+        h.mag = quat_rotate_mag(pose.rot, m_obj) + abs3(pose.pos) + abs3(h.p)
+        h.ng = wp.normalize(normal_to_world(pose, n_obj))
+        h.ns = h.ng
+        if scene.insts[index].smooth != 0:
+            off = scene.insts[index].nrm_off
+            n0 = scene.normals[off + mesh.indices[face * 3 + 0]]
+            n1 = scene.normals[off + mesh.indices[face * 3 + 1]]
+            n2 = scene.normals[off + mesh.indices[face * 3 + 2]]
+            ns_w = normal_to_world(pose, bu * n0 + bv * n1 + (1.0 - bu - bv) * n2)
+            if wp.length(ns_w) > 0.0:
+                h.ns = wp.normalize(ns_w)
+        h.mat = scene.insts[index].mat
+        return h
+
+    @wp.func(inline=True)
+    def closest_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> Hit:
+        """The nearest surface along (o, d) (unit d) in (t_min, t_max), refined onto its surface."""
+        best = float(t_max)
+        kind = int(KIND_NONE)
+        index = int(-1)
+        face = int(-1)
+        bu = float(0.0)
+        bv = float(0.0)
+        if scene.sph_bvh != wp.uint64(0):
+            query = wp.bvh_query_ray(scene.sph_bvh, o, d)
+            i = int(0)
+            while wp.bvh_query_next(query, i, best):
+                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
+                if t >= 0.0:
+                    best = t
+                    kind = KIND_SPHERE
+                    index = i
+        else:
+            for i in range(scene.n_spheres):
+                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
+                if t >= 0.0:
+                    best = t
+                    kind = KIND_SPHERE
+                    index = i
+        for i in range(scene.n_planes):
+            t = intersect_plane(o, d, scene.planes[i].p, scene.planes[i].n, t_min, best)
+            if t >= 0.0:
+                best = t
+                kind = KIND_PLANE
+                index = i
+        for i in range(scene.n_rects):
+            t = intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, t_min, best)
+            if t >= 0.0:
+                best = t
+                kind = KIND_RECT
+                index = i
+        for i in range(scene.n_disks):
+            t = intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, t_min, best)
+            if t >= 0.0:
+                best = t
+                kind = KIND_DISK
+                index = i
+        if wp.static(F.meshes):
+            if scene.n_inst > 0:
+                # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
+                # Warp's triangle t and an analytic t for the same surface differ by ~9 ulps
+                # either way; without the band a mesh on a plane z-fights in a noisy pattern
+                mesh_t_max = best
+                if kind != KIND_NONE:
+                    mesh_t_max = best * (1.0 - TIE)
+                m = mesh_nearest(scene, o, d, t_min, mesh_t_max, time)
+                if m.index >= 0:
+                    best = m.t
+                    kind = KIND_MESH
+                    index = m.index
+                    face = m.face
+                    bu = m.u
+                    bv = m.v
+
+        h = Hit()
+        h.t = -1.0
+        h.kind = kind
+        h.index = index
+        if kind == KIND_NONE:
+            return h
+        h.t = best
+        p = o + d * best
+        if kind == KIND_SPHERE:
+            c = sphere_center(scene, index, time)
+            r = scene.spheres[index].r
+            h.p = refine_on_sphere(p, c, r)
+            h.ng = wp.normalize(h.p - c)
+            h.ns = h.ng
+            h.mag = abs3(c) + abs3(h.ng) * r  # the centre, and the radius along each axis
+            h.mat = scene.spheres[index].mat
+        elif kind == KIND_PLANE:
+            n = scene.planes[index].n
+            h.p = refine_on_plane(p, scene.planes[index].p, n)
+            h.ng = n
+            h.ns = n
+            h.mag = wp.max(abs3(h.p), abs3(scene.planes[index].p))
+            h.mat = scene.planes[index].mat
+        elif kind == KIND_RECT:
+            n = scene.rects[index].n
+            c = scene.rects[index].c
+            h.p = refine_on_plane(p, c, n)
+            h.ng = n
+            h.ns = n
+            h.mag = abs3(c) + abs3(scene.rects[index].e1) + abs3(scene.rects[index].e2)
+            h.mat = scene.rects[index].mat
+        elif kind == KIND_DISK:
+            n = scene.disks[index].n
+            c = scene.disks[index].c
+            h.p = refine_on_plane(p, c, n)
+            h.ng = n
+            h.ns = n
+            h.mag = abs3(c) + disk_extent(n, scene.disks[index].r)
+            h.mat = scene.disks[index].mat
+        if wp.static(F.meshes):
+            if kind == KIND_MESH:
+                h = mesh_details(scene, h, o, d, face, bu, bv, time)
+        return h
+
+    @wp.func(inline=True)
+    def crossing(scene: SceneData, mat: int) -> wp.vec3:
+        """Light passing one surface of material ``mat`` in a shadow ray: kt, or 0 when opaque."""
+        if wp.static(F.refraction):
+            return scene.mats[mat].kt
+        return wp.vec3(0.0, 0.0, 0.0)
+
+    @wp.func(inline=True)
+    def sphere_crossings(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float, i: int) -> wp.vec3:
+        """Transmission through sphere i along (o, d) over (0, t_max): kt per surface crossed."""
+        roots = sphere_roots(o, d, sphere_center(scene, i, time), scene.spheres[i].r)
+        T = wp.vec3(1.0, 1.0, 1.0)
+        for k in range(2):
+            if roots[k] > 0.0 and roots[k] < t_max:
+                T = wp.cw_mul(T, crossing(scene, scene.spheres[i].mat))
+        return T
+
+    @wp.func
+    def mesh_transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
+        T = wp.vec3(1.0, 1.0, 1.0)
+        for i in range(scene.n_inst):
+            pose = instance_pose(scene, i, time)
+            o_obj = to_object(pose, o)
+            d_obj = dir_to_object(pose, d)
+            kt = crossing(scene, scene.insts[i].mat)
+            if wp.max(kt) <= 0.0:
+                if wp.mesh_query_ray_anyhit(scene.insts[i].mesh, o_obj, d_obj, t_max):
+                    # any hit at all: make sure it is not the surface the ray leaves
+                    if mesh_first_hit(scene.insts[i].mesh, o_obj, d_obj, t_max).index >= 0:
+                        return wp.vec3(0.0, 0.0, 0.0)
+            else:
+                # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
+                # triangle from the barycentrics (error: ulps of the mesh coordinates, not of the
+                # ray's length) and the walk goes on from just past it; o + d·t from a far origin
+                # is off by more than the step and found the same crossing again (kt², kt³...)
+                t0 = float(0.0)  # ray parameter of o_cur
+                d_len = wp.length(d_obj)
+                o_cur = o_obj
+                for _k in range(64):
+                    q = mesh_first_hit(scene.insts[i].mesh, o_cur, d_obj, t_max - t0)
+                    if q.index < 0:
+                        break
+                    T = wp.cw_mul(T, kt)
+                    p_s = wp.mesh_eval_position(scene.insts[i].mesh, q.face, q.u, q.v)
+                    step = spawn_offset(max_abs(p_s)) / d_len
+                    t0 = t0 + q.t + step
+                    o_cur = p_s + d_obj * step
+                    if t0 >= t_max or wp.max(T) <= 0.0:
+                        break
+            if wp.max(T) <= 0.0:
+                return wp.vec3(0.0, 0.0, 0.0)
+        return T
+
+    @wp.func(inline=True)
+    def transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
+        """Fraction of light arriving along the shadow ray (o, d) over (0, t_max): 0 when an
+        opaque surface blocks it; transparent surfaces multiply it by their kt per crossing."""
+        T = wp.vec3(1.0, 1.0, 1.0)
+        if scene.sph_bvh != wp.uint64(0):
+            query = wp.bvh_query_ray(scene.sph_bvh, o, d)
+            i = int(0)
+            while wp.bvh_query_next(query, i, t_max):
+                T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
+        else:
+            for i in range(scene.n_spheres):
+                T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
+        for i in range(scene.n_planes):
+            if intersect_plane(o, d, scene.planes[i].p, scene.planes[i].n, 0.0, t_max) >= 0.0:
+                T = wp.cw_mul(T, crossing(scene, scene.planes[i].mat))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
+        for i in range(scene.n_rects):
+            if intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, 0.0, t_max) >= 0.0:
+                T = wp.cw_mul(T, crossing(scene, scene.rects[i].mat))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
+        for i in range(scene.n_disks):
+            if intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, 0.0, t_max) >= 0.0:
+                T = wp.cw_mul(T, crossing(scene, scene.disks[i].mat))
+                if wp.max(T) <= 0.0:
+                    return wp.vec3(0.0, 0.0, 0.0)
+        if wp.static(F.meshes):
+            if scene.n_inst > 0:
+                T = wp.cw_mul(T, mesh_transmittance(scene, o, d, t_max, time))
+        return T
+
+    @wp.func(inline=True)
+    def shadow(scene: SceneData, origin: wp.vec3, target: wp.vec3, stop_short: float, time: float) -> wp.vec3:
+        """Transmittance from ``origin`` to ``target``, ending ``stop_short`` before the target
+        (so the light's own surface never occludes it)."""
+        to_t = target - origin
+        dist = wp.length(to_t)
+        if dist <= stop_short:
+            return wp.vec3(1.0, 1.0, 1.0)
+        return transmittance(scene, origin, to_t / dist, dist - stop_short, time)
+
+    return SimpleNamespace(closest_hit=closest_hit, transmittance=transmittance, shadow=shadow,
+                           sphere_center=sphere_center, instance_pose=instance_pose)
