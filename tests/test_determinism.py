@@ -56,15 +56,15 @@ def test_bit_identical_for_any_workers_tiles_and_passes(renderer, options):
     assert base.rays == other.rays  # the same rays were traced, not just the same sums
 
 
-def test_same_seed_twice_is_identical_across_renderers():
-    a = warprt.Renderer(glass_scene(), device="cpu").render(spp=8, seed=11, progress=False).image
-    b = warprt.Renderer(glass_scene(), device="cpu").render(spp=8, seed=11, progress=False).image
+def test_same_seed_twice_is_identical_across_renderers(device):
+    a = warprt.Renderer(glass_scene(), device=device).render(spp=8, seed=11, progress=False).image
+    b = warprt.Renderer(glass_scene(), device=device).render(spp=8, seed=11, progress=False).image
     assert a.tobytes() == b.tobytes()
 
 
 @pytest.mark.parametrize("sampler", ["stratified", "independent", "sobol"])
-def test_different_seeds_give_different_noise(sampler):
-    r = warprt.Renderer(glass_scene(sampler), device="cpu")
+def test_different_seeds_give_different_noise(device, sampler):
+    r = warprt.Renderer(glass_scene(sampler), device=device)
     a = r.render(spp=8, seed=0, progress=False).image
     b = r.render(spp=8, seed=1, progress=False).image
     c = r.render(spp=8, seed=0, progress=False).image
@@ -75,9 +75,9 @@ def test_different_seeds_give_different_noise(sampler):
     assert abs(float(a.mean()) - float(b.mean())) < 0.02 * float(a.mean())
 
 
-def test_regular_sampler_ignores_the_seed():
+def test_regular_sampler_ignores_the_seed(device):
     """The regular sampler has no randomness in this scene (no area lights, no glossy lobes)."""
-    r = warprt.Renderer(glass_scene("regular"), device="cpu")
+    r = warprt.Renderer(glass_scene("regular"), device=device)
     a = r.render(spp=4, seed=0, progress=False).image
     b = r.render(spp=4, seed=12345, progress=False).image
     assert a.tobytes() == b.tobytes()
@@ -114,25 +114,25 @@ def hall_radiance(max_depth: int) -> float:
 
 
 @pytest.mark.parametrize("max_depth", [1, 10, 15])
-def test_no_stack_overflow_up_to_depth_15(max_depth):
-    res = warprt.Renderer(hall_of_mirrors(max_depth), device="cpu").render(spp=2, progress=False)
+def test_no_stack_overflow_up_to_depth_15(device, max_depth):
+    res = warprt.Renderer(hall_of_mirrors(max_depth), device=device).render(spp=2, progress=False)
     assert res.stack_overflows == 0
     assert np.isfinite(res.image).all()
     # every ray of the tree was traced: the closed-form sum over the tree
     np.testing.assert_allclose(res.image, hall_radiance(max_depth), rtol=1e-5)
 
 
-def test_stack_overflow_at_depth_16_drops_exactly_one_ray_per_camera_ray():
-    res = warprt.Renderer(hall_of_mirrors(16), device="cpu").render(spp=2, progress=False)
+def test_stack_overflow_at_depth_16_drops_exactly_one_ray_per_camera_ray(device):
+    res = warprt.Renderer(hall_of_mirrors(16), device=device).render(spp=2, progress=False)
     assert res.stack_overflows == 8 * 6 * 2
     assert np.isfinite(res.image).all()
     # the dropped ray is the main chain's last reflection (weight 0.99^16, a leaf at depth 16)
     np.testing.assert_allclose(res.image, hall_radiance(16) - 0.05 * 0.99 ** 16, rtol=1e-5)
 
 
-def test_deep_recursion_overflows_are_counted_and_pixels_stay_finite():
-    shallow = warprt.Renderer(hall_of_mirrors(15), device="cpu").render(spp=1, progress=False)
-    deep = warprt.Renderer(hall_of_mirrors(40), device="cpu").render(spp=1, progress=False)
+def test_deep_recursion_overflows_are_counted_and_pixels_stay_finite(device):
+    shallow = warprt.Renderer(hall_of_mirrors(15), device=device).render(spp=1, progress=False)
+    deep = warprt.Renderer(hall_of_mirrors(40), device=device).render(spp=1, progress=False)
     assert deep.stack_overflows > 0
     assert np.isfinite(deep.image).all() and (deep.image >= 0).all()
     assert deep.rays > shallow.rays

@@ -56,36 +56,36 @@ def test_unused_materials_add_no_feature():
     _scene(),
     _scene(materials={"floor": warprt.Material(kd=0.5, mirror=0.4), "ball": warprt.Material(kd=0.2, mirror=0.7)}),
 ], ids=["plain", "mirrors"])
-def test_specialised_kernel_matches_the_full_kernel_bit_for_bit(scene):
-    specialised = warprt.Renderer(scene, device="cpu")
-    full = warprt.Renderer(scene, device="cpu", features=Features.full())
+def test_specialised_kernel_matches_the_full_kernel_bit_for_bit(device, scene):
+    specialised = warprt.Renderer(scene, device=device)
+    full = warprt.Renderer(scene, device=device, features=Features.full())
     assert specialised.features != full.features
     a = specialised.render(spp=4, progress=False).image
     b = full.render(spp=4, progress=False).image
     assert a.tobytes() == b.tobytes()
 
 
-def test_mesh_instances_share_one_asset():
+def test_mesh_instances_share_one_asset(device):
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     shapes = tuple(warprt.Mesh(vertices=v.copy(), faces=f, transform=warprt.Transform(translate=(x, 0, 0)))
                    for x in range(3))
     other = warprt.Mesh(vertices=v * 2.0, faces=f)
-    r = warprt.Renderer(_scene(shapes=shapes + (other,)), device="cpu")
+    r = warprt.Renderer(_scene(shapes=shapes + (other,)), device=device)
     assert len(r.built.meshes) == 2  # equal arrays share one wp.Mesh, different ones do not
     assert r.built.data.n_inst == 4
 
 
-def test_sphere_bvh_finds_the_same_hits_as_the_loop(monkeypatch):
+def test_sphere_bvh_finds_the_same_hits_as_the_loop(device, monkeypatch):
     rng = np.random.default_rng(7)
     centers = rng.uniform(-1.5, 1.5, (40, 3))
     shapes = tuple(warprt.Sphere(center=tuple(c), radius=float(r), material="ball")
                    for c, r in zip(centers, rng.uniform(0.05, 0.35, 40))) + (warprt.Plane(point=(0, -2, 0), material="floor"),)
     scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=32, height=24))
-    with_bvh = warprt.Renderer(scene, device="cpu")
+    with_bvh = warprt.Renderer(scene, device=device)
     assert with_bvh.built.sphere_bvh is not None
     monkeypatch.setattr(build_module, "SPHERE_BVH_MIN", 10 ** 9)
-    loop = warprt.Renderer(scene, device="cpu")
+    loop = warprt.Renderer(scene, device=device)
     assert loop.built.sphere_bvh is None
     a = with_bvh.render(spp=2, progress=False).image
     b = loop.render(spp=2, progress=False).image

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 import warprt
+from reference_formulas import fresnel_exact, fresnel_schlick
 from warprt import Material, Plane, PointLight, Sphere
 
 SCENES = pathlib.Path(__file__).resolve().parents[1] / "scenes"
@@ -226,24 +227,6 @@ class Reference:
         for dx, dy in ((delta, delta), (-delta, delta), (delta, -delta), (-delta, -delta)):
             worst = np.maximum(worst, np.abs(self.image(dx, dy) - centre).max(axis=2))
         return centre, worst < tol
-
-
-def fresnel_exact(cos_i, eta_i, eta_t):
-    cos_i = np.clip(cos_i, 0, 1)
-    sin_t = eta_i / eta_t * np.sqrt(np.maximum(0, 1 - cos_i ** 2))
-    cos_t = np.sqrt(np.maximum(0, 1 - sin_t ** 2))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rp = (eta_t * cos_i - eta_i * cos_t) / (eta_t * cos_i + eta_i * cos_t)
-        rs = (eta_i * cos_i - eta_t * cos_t) / (eta_i * cos_i + eta_t * cos_t)
-    return np.where(sin_t >= 1, 1.0, 0.5 * (rp ** 2 + rs ** 2))
-
-
-def fresnel_schlick(cos_i, eta_i, eta_t):
-    r0 = ((eta_i - eta_t) / (eta_i + eta_t)) ** 2
-    c = np.clip(cos_i, 0, 1)
-    sin_t2 = (eta_i / eta_t) ** 2 * (1 - c * c)
-    c = np.where(eta_i > eta_t, np.sqrt(np.maximum(0, 1 - sin_t2)), c)
-    return np.where((eta_i > eta_t) & (sin_t2 >= 1), 1.0, r0 + (1 - r0) * (1 - c) ** 5)
 
 
 # --- fixtures -------------------------------------------------------------------------------------

@@ -93,7 +93,7 @@ def test_naive_normal_of_a_zero_area_face_is_nan():
             assert np.isnan(n / np.linalg.norm(n)).all()
 
 
-def test_zero_area_faces_are_refused_naming_the_field_and_the_face():
+def test_zero_area_faces_are_refused_naming_the_field_and_the_face(device):
     with pytest.raises(warprt.SceneError) as err:
         render(quad_scene(DEGENERATE_F))
     assert err.value.field == "shapes[0].faces"
@@ -104,7 +104,7 @@ def test_zero_area_faces_are_refused_naming_the_field_and_the_face():
             f"vertices = {QUAD_V.tolist()}\nfaces = {DEGENERATE_F[[0, 2, 3]].tolist()}\n")
     scene = warprt.scene_from_string(text, source="quad.toml")
     with pytest.raises(warprt.SceneError) as err:
-        warprt.Renderer(scene, device="cpu")
+        warprt.Renderer(scene, device=device)
     assert str(err.value).startswith("quad.toml: shapes[0].faces: 1 of 3 faces have zero area (first: face 2)")
 
 
@@ -234,7 +234,7 @@ def test_sliver_triangles_are_hit_at_the_closed_form_t(length, height, where):
 
 @pytest.mark.parametrize("bad, toml_bad", [(math.nan, "nan"), (math.inf, "inf"), (-math.inf, "-inf")],
                          ids=["nan", "inf", "-inf"])
-def test_nan_or_inf_vertices_are_scene_errors(bad, toml_bad, tmp_path):
+def test_nan_or_inf_vertices_are_scene_errors(device, bad, toml_bad, tmp_path):
     v = [[0, 0, 0], [1, 0, 0], [0, bad, 0], [0, 1, 0]]
     f = [[0, 1, 3], [0, 1, 2]]
     with pytest.raises(warprt.SceneError) as err:  # Python API: at construction
@@ -247,7 +247,7 @@ def test_nan_or_inf_vertices_are_scene_errors(bad, toml_bad, tmp_path):
     obj = tmp_path / "bad.obj"  # mesh file: when the scene is built
     obj.write_text(f"v 0 0 0\nv 1 0 0\nv 0 {toml_bad} 0\nv 0 1 0\nf 1 2 4\nf 1 2 3\n")
     with pytest.raises(warprt.SceneError) as err:
-        warprt.Renderer(warprt.Scene(shapes=(warprt.Mesh(file=str(obj)),)), device="cpu")
+        warprt.Renderer(warprt.Scene(shapes=(warprt.Mesh(file=str(obj)),)), device=device)
     assert err.value.field == "shapes[0].vertices" and "first: vertex 2" in err.value.problem
 
 

@@ -44,22 +44,12 @@ import numpy as np
 import pytest
 
 import warprt
+from reference_formulas import fresnel_exact
 
 from ._util import SPAWN_REL, image, pixel_hits, render, unit
 
 B = np.array([0.2, 0.5, 1.0])
 IOR = 1.5
-
-
-def fresnel_exact(cos_i, n1, n2):
-    """Unpolarised dielectric reflectance (float64); 1 under total internal reflection."""
-    cos_i = np.clip(cos_i, 0.0, 1.0)
-    sin_t = n1 / n2 * np.sqrt(1.0 - cos_i ** 2)
-    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin_t ** 2))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t)
-        rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t)
-    return np.where(sin_t >= 1.0, 1.0, 0.5 * (rs ** 2 + rp ** 2))
 
 
 # --- camera inside a glass sphere --------------------------------------------------------------

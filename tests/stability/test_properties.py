@@ -866,7 +866,7 @@ def test_broken_scene_files_raise_scene_error_naming_file_and_field(kind, data, 
     with pytest.raises(SceneError) as info:
         scene = warprt.load_scene(path)
         if broken.build:
-            DeviceScene(scene, resolve_device("cpu"))
+            DeviceScene(scene, resolve_device("cpu"))  # host-side checks: the device does not matter
     err = info.value
     msg = str(err)
     assert "\n" not in msg, msg

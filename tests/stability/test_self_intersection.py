@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 import warprt
+from reference_formulas import fresnel_exact
 
 from ._util import SPAWN_REL, image, max_abs, pixel_hits, unit
 
@@ -214,16 +215,6 @@ def test_lit_pixels_equal_closed_form_without_acne(scale, shift):
 
 
 B = (0.2, 0.5, 1.0)
-
-
-def fresnel_exact(cos_i, n1, n2):
-    """Unpolarised dielectric reflectance (float64)."""
-    cos_i = np.clip(cos_i, 0.0, 1.0)
-    sin_t = n1 / n2 * np.sqrt(1.0 - cos_i ** 2)
-    cos_t = np.sqrt(np.maximum(0.0, 1.0 - sin_t ** 2))
-    rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t)
-    rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t)
-    return np.where(sin_t >= 1.0, 1.0, 0.5 * (rs ** 2 + rp ** 2))
 
 
 DEPTH = 12
