@@ -368,7 +368,7 @@ def write_charts(charts, out: Path) -> list[str]:
         workers = sorted(k for k in tp if isinstance(k, int))
         if workers:
             axes[0].bar([str(w) for w in workers], [tp[w]["mrays_per_s"] for w in workers], color="tab:blue")
-            axes[0].set_xlabel("worker threads (tiles over a thread pool)")
+            axes[0].set_xlabel("worker threads (interleaved pixel slices over a thread pool)")
             axes[0].set_ylabel("Mrays/s, showcase scene")
             for i, w in enumerate(workers):
                 axes[0].annotate(f"{tp[w]['mrays_per_s']:.2f}", (i, tp[w]["mrays_per_s"]), ha="center", va="bottom")

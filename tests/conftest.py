@@ -37,11 +37,6 @@ def cuda_device() -> str:
     return "cuda:0"
 
 
-@pytest.fixture
-def scenes_dir() -> pathlib.Path:
-    return SCENES
-
-
 def pytest_terminal_summary(terminalreporter):
     """Report (and record for the benchmarks) how many render-kernel variants this run built:
     each is one Warp module, a few seconds of compile on a cold cache."""

@@ -41,15 +41,15 @@ def test_the_scene_uses_the_recursive_kernel(renderer):
 
 @pytest.mark.parametrize("options", [
     dict(workers=2),
-    dict(workers=1, tile_size=5),
-    dict(workers=2, tile_size=7),
-    dict(workers=2, tile_size=64),
+    dict(workers=1, slices=5),
+    dict(workers=2, slices=7),
+    dict(workers=2, slices=64),
     dict(workers=1, pass_spp=1),
-    dict(workers=2, pass_spp=3, tile_size=3),
+    dict(workers=2, pass_spp=3, slices=3),
     dict(workers=2, pass_spp=7),  # a first pass of one sample, then the other seven at once
 ], ids=lambda o: ",".join(f"{k}={v}" for k, v in o.items()))
-def test_bit_identical_for_any_workers_tiles_and_passes(renderer, options):
-    base = renderer.render(spp=8, seed=3, workers=1, tile_size=16, pass_spp=1, progress=False)
+def test_bit_identical_for_any_workers_slices_and_passes(renderer, options):
+    base = renderer.render(spp=8, seed=3, workers=1, slices=16, pass_spp=1, progress=False)
     other = renderer.render(spp=8, seed=3, progress=False, **options)
     assert base.spp == other.spp == 8
     assert base.image.tobytes() == other.image.tobytes()

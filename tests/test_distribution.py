@@ -344,11 +344,11 @@ def _busy_scene() -> warprt.Scene:
 
 
 @pytest.mark.parametrize("sampler", ["independent", "stratified", "sobol"])
-def test_bit_identical_for_any_workers_tiles_and_passes(sampler):
+def test_bit_identical_for_any_workers_slices_and_passes(sampler):
     scene = _busy_scene().with_settings(sampler=sampler)
-    a = render(scene, 8, seed=3, workers=1, tile_size=64).image
-    b = render(scene, 8, seed=3, workers=2, tile_size=5).image
-    c = render(scene, 8, seed=3, workers=2, tile_size=7, pass_spp=3).image
+    a = render(scene, 8, seed=3, workers=1, slices=1).image
+    b = render(scene, 8, seed=3, workers=2, slices=5).image
+    c = render(scene, 8, seed=3, workers=2, slices=7, pass_spp=3).image
     assert a.tobytes() == b.tobytes() == c.tobytes()
     d = render(scene, 8, seed=4).image
     assert np.abs(a - d).mean() > 1e-4

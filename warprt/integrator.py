@@ -69,11 +69,12 @@ def kernels_for(F: Features) -> SimpleNamespace:
 
     @wp.kernel(module="unique", enable_backward=False)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
-                      x0: int, y0: int, tile_w: int, tile_h: int, s0: int, s1: int, film: FilmData):
+                      row0: int, stride: int, s0: int, s1: int, film: FilmData):
+        # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame)
         tid = wp.tid()
-        px = x0 + tid % tile_w
-        py = y0 + tid / tile_w
-        if px >= cam.width or py >= cam.height:
+        px = tid % cam.width
+        py = row0 + (tid / cam.width) * stride
+        if py >= cam.height:
             return
         pixel = py * cam.width + px
         acc = film.accum[pixel]

@@ -1,10 +1,14 @@
-"""Render a scene: build it on a device, pick its kernel, run passes over tiles, return the image.
+"""Render a scene: build it on a device, pick its kernel, run passes over the frame, return the image.
 
-Parallelism: a Warp launch on the CPU runs on one core, so the frame is cut into square tiles
-that a pool of worker threads (one per core) takes from a shared queue; on CUDA each pass is one
-launch over the whole frame. A thread owns a pixel for the whole pass and adds its samples in
-order, and every random number depends only on (seed, pixel, sample, dimension): the image is
-bit-identical for any tile size, worker count or pass split.
+Parallelism: a Warp launch on the CPU runs on one core, so each pass is cut into ``slices``
+interleaved sets of rows (slice j holds rows j, j + S, j + 2S, ... of the frame),
+launched from a pool of worker threads (one per core, kept by the renderer) that take slices
+from a shared queue. Interleaving gives every slice the same mix of cheap and expensive pixels,
+so a few launches per pass balance the cores; each launch is recorded once per render and
+replayed with new sample bounds, so a pass costs a few microseconds of Python. On CUDA each pass
+is one launch over the whole frame. A thread owns a pixel for the whole pass and adds its
+samples in order, and every random number depends only on (seed, pixel, sample, dimension): the
+image is bit-identical for any slice count, worker count or pass split.
 
 Progressive rendering: the samples are split into passes (a first pass of one sample per pixel,
 then passes sized to take about half a second). ``time_budget`` stops after the pass that reaches
@@ -19,6 +23,8 @@ import os
 import sys
 import threading
 import time as _time
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FuturesTimeout
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,9 +66,14 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _tiles(width: int, height: int, size: int) -> list[tuple[int, int, int, int]]:
-    return [(x, y, min(size, width - x), min(size, height - y))
-            for y in range(0, height, size) for x in range(0, width, size)]
+S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
+SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
+
+
+def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int]]:
+    """(first row, row stride, pixels) of each of ``count`` interleaved slices of the frame."""
+    count = max(1, min(count, height))
+    return [(j, count, width * ((height - j + count - 1) // count)) for j in range(count)]
 
 
 class Renderer:
@@ -80,6 +91,9 @@ class Renderer:
         self.built = DeviceScene(scene, self.device)
         self.features = self.built.features if features is None else self.built.features.union(features)
         self.kernel = kernels_for(self.features).render
+        self._loaded = None  # the kernel loaded on the device by compile()
+        self._pool: ThreadPoolExecutor | None = None
+        self._pool_size = 0
 
     def update(self, scene: Scene) -> None:
         """Switch to a changed scene (moved objects, new materials, lights or camera...) without
@@ -118,27 +132,48 @@ class Renderer:
         film = Film(1, 1, dev)
         wp.launch(self.kernel, dim=1, device=dev,
                   inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features),
-                          0, 0, 1, 1, 0, 0, film.data])
+                          0, 1, 0, 0, film.data])
         wp.synchronize_device(dev)
         return _time.perf_counter() - start
 
+    def _workers(self, workers: int) -> ThreadPoolExecutor:
+        """The renderer's pool of ``workers`` threads, kept from one render to the next."""
+        if self._pool is None or self._pool_size != workers:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+            self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warprt-render")
+            self._pool_size = workers
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the worker threads (they also stop when the renderer is garbage-collected)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def __del__(self):
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
+
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
-               tile_size: int = 16, pass_spp: int | None = None, time_budget: float | None = None,
+               slices: int | None = None, pass_spp: int | None = None, time_budget: float | None = None,
                target_error: float | None = None, progress: bool | None = None,
                aovs=None, as_warp: bool = False) -> RenderResult:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
-        passes, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
+        passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
         (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``object_id``, ``material``,
         ``motion``) returned in ``RenderResult.aovs``. With ``as_warp=True`` the image stays on the
         device: ``RenderResult.image`` is a (H, W, 3) float32 ``wp.array`` (DLPack-ready for torch
-        or JAX), with no copy to the host."""
+        or JAX), with no copy to the host. ``slices``: interleaved pixel sets per pass on the CPU
+        (default ``SLICES_PER_WORKER`` per worker); it changes the speed, never the image."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
             raise RenderError(f"seed must be an integer, got {seed!r}")
-        if not isinstance(tile_size, (int, np.integer)) or tile_size < 1:
-            raise RenderError(f"tile_size must be a positive integer, got {tile_size!r}")
+        if slices is not None and (isinstance(slices, bool) or not isinstance(slices, (int, np.integer)) or slices < 1):
+            raise RenderError(f"slices must be a positive integer, got {slices!r}")
         if time_budget is not None and not (time_budget > 0):
             raise RenderError(f"time_budget must be positive seconds, got {time_budget!r}")
         if target_error is not None and not (target_error > 0):
@@ -149,50 +184,55 @@ class Renderer:
             aovs = [aovs]
         aov_maps = compute_aovs(self.built, aovs) if aovs else {}
         workers = default_workers() if workers is None else workers
-        if not isinstance(workers, (int, np.integer)) or workers < 1:
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
             raise RenderError(f"workers must be a positive integer, got {workers!r}")
 
         cam = self.scene.camera
         width, height, dev = cam.width, cam.height, self.device
         film = Film(width, height, dev)
         params = render_params(self.scene, int(spp), int(seed), self.built.features)
-        self.compile()
+        if self._loaded is not self.kernel:
+            self.compile()
+            self._loaded = self.kernel
 
-        tiles = _tiles(width, height, tile_size) if dev.is_cpu else [(0, 0, width, height)]
-
-        def launch(tile, s0, s1):
-            x0, y0, tw, th = tile
-            wp.launch(self.kernel, dim=tw * th, device=dev,
-                      inputs=[self.built.data, self.built.camera, params, x0, y0, tw, th, s0, s1, film.data])
+        n_slices = (SLICES_PER_WORKER * workers if slices is None else int(slices)) if dev.is_cpu else 1
+        # one recorded launch per slice, replayed every pass with the pass's sample range
+        launches = [wp.launch(self.kernel, dim=count, device=dev, record_cmd=True,
+                              inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0, film.data])
+                    for first, stride, count in _slices(width, height, n_slices)]
+        pool = self._workers(int(workers))
 
         def run_pass(s0: int, s1: int) -> None:
-            """Run samples [s0, s1) on every tile, from worker threads (also with one worker, so
-            that a Ctrl-C reaching the main thread never splits a launch). The interrupt is held
+            """Run samples [s0, s1) on every slice, from the worker threads (also with one worker,
+            so that a Ctrl-C reaching the main thread never splits a launch). The interrupt is held
             until the pass is complete, so every pixel holds the same number of samples."""
             stop = False
-            next_tile = iter(tiles)
+            next_slice = iter(launches)
             lock = threading.Lock()
             errors: list[BaseException] = []
 
             def work():
                 while True:
                     with lock:
-                        tile = next(next_tile, None)
-                    if tile is None or errors:
+                        cmd = next(next_slice, None)
+                    if cmd is None or errors:
                         return
                     try:
-                        launch(tile, s0, s1)
+                        cmd.set_param_at_index(S0_ARG, s0)
+                        cmd.set_param_at_index(S0_ARG + 1, s1)
+                        cmd.launch()
                     except BaseException as e:  # surfaced in the caller
                         errors.append(e)
                         return
 
-            threads = [threading.Thread(target=work, daemon=True) for _ in range(min(workers, len(tiles)))]
-            for t in threads:
-                t.start()
-            for t in threads:
-                while t.is_alive():
+            futures = [pool.submit(work) for _ in range(min(workers, len(launches)))]
+            for f in futures:
+                while True:
                     try:
-                        t.join(timeout=0.1)
+                        f.result(timeout=0.1)
+                        break
+                    except FuturesTimeout:
+                        continue
                     except KeyboardInterrupt:
                         stop = True
             if errors:
@@ -255,7 +295,7 @@ def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | No
     With ``aovs=[...]`` the result is a dict: ``{"color": image, "depth": ..., ...}``.
 
     ``spp`` defaults to the scene's ``render.spp``; ``seed`` picks the noise (the same seed gives
-    the same image bit for bit). Further options (``workers``, ``tile_size``, ``time_budget``,
+    the same image bit for bit). Further options (``workers``, ``slices``, ``time_budget``,
     ``target_error``, ``progress``...) are those of :meth:`Renderer.render`; use
     :class:`Renderer` directly for the statistics (:class:`RenderResult`).
     """

@@ -439,7 +439,7 @@ def test_identical_coincident_shapes_first_listed_wins_everywhere(kind):
     img = image(scene)
     a, b, covered = _winners(img)
     assert covered.sum() > 150 and not b.any(), f"the second {kind} wins {b.sum()} of {covered.sum()} pixels"
-    again = render(scene, workers=1, tile_size=5).image
+    again = render(scene, workers=1, slices=5).image
     np.testing.assert_array_equal(img, again)
 
 
