@@ -76,17 +76,24 @@ def test_mesh_instances_share_one_asset(device):
     assert r.built.data.n_inst == 4
 
 
-def test_sphere_bvh_finds_the_same_hits_as_the_loop(device, monkeypatch):
+def test_analytic_bvh_finds_the_same_hits_as_the_loop(device, monkeypatch):
+    """Spheres, rectangles and disks through one BVH: the same image and hits as the loops (no
+    two shapes here meet a ray at the same t, so the order of testing cannot matter)."""
     rng = np.random.default_rng(7)
     centers = rng.uniform(-1.5, 1.5, (40, 3))
     shapes = tuple(warprt.Sphere(center=tuple(c), radius=float(r), material="ball")
-                   for c, r in zip(centers, rng.uniform(0.05, 0.35, 40))) + (warprt.Plane(point=(0, -2, 0), material="floor"),)
+                   for c, r in zip(centers, rng.uniform(0.05, 0.35, 40)))
+    shapes += tuple(warprt.Rectangle(corner=tuple(rng.uniform(-1.5, 1.5, 3)), edge1=tuple(rng.normal(0, 0.4, 3)),
+                                     edge2=tuple(rng.normal(0, 0.4, 3)), material="ball") for _ in range(12))
+    shapes += tuple(warprt.Disk(center=tuple(rng.uniform(-1.5, 1.5, 3)), normal=tuple(rng.normal(0, 1, 3)),
+                                radius=float(rng.uniform(0.1, 0.4)), material="ball") for _ in range(12))
+    shapes += (warprt.Plane(point=(0, -2, 0), material="floor"),)
     scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=32, height=24))
     with_bvh = warprt.Renderer(scene, device=device)
-    assert with_bvh.built.sphere_bvh is not None
-    monkeypatch.setattr(build_module, "SPHERE_BVH_MIN", 10 ** 9)
+    assert with_bvh.built.analytic_bvh is not None
+    monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
     loop = warprt.Renderer(scene, device=device)
-    assert loop.built.sphere_bvh is None
+    assert loop.built.analytic_bvh is None
     a = with_bvh.render(spp=2, progress=False).image
     b = loop.render(spp=2, progress=False).image
     assert a.tobytes() == b.tobytes()

@@ -29,7 +29,7 @@ from .scene.description import Material, Mesh, PointLight, Scene
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, KINDS
 
-SPHERE_BVH_MIN = 16  # from this many spheres on, rays find them through a BVH instead of a loop
+ANALYTIC_BVH_MIN = 16  # from this many spheres, rectangles and disks on, rays find them through one BVH
 
 
 class DeviceScene:
@@ -129,7 +129,7 @@ class DeviceScene:
         d.alights = table(AreaLightRec, alights, dev)
         d.ambient = wp.vec3(*scene.ambient)
         d.background = wp.vec3(*scene.background)
-        self._sphere_bvh(d, rows["spheres"])
+        self._analytic_bvh(d, rows)
         self.data = d
         self.camera = camera_data(scene)
 
@@ -156,21 +156,26 @@ class DeviceScene:
             all_n[off:off + len(vn)] = vn
             self.data.normals.assign(all_n)
 
-    def _sphere_bvh(self, d: SceneData, sph: list[dict]) -> None:
-        """From SPHERE_BVH_MIN spheres on, a wp.Bvh over their bounds (swept over the motion)."""
+    def _analytic_bvh(self, d: SceneData, rows: dict[str, list[dict]]) -> None:
+        """From ANALYTIC_BVH_MIN bounded analytic shapes on, one wp.Bvh over their bounds (spheres
+        swept over their motion), each primitive tagged (kind, row)."""
         dev = self.device
-        self.sphere_bvh = None
-        d.sph_bvh = wp.uint64(0)
-        if len(sph) >= SPHERE_BVH_MIN:
-            c0 = np.array([s["c0"] for s in sph], dtype=np.float64)
-            c1 = np.array([s["c1"] for s in sph], dtype=np.float64)
-            r = np.array([s["r"] for s in sph], dtype=np.float64)[:, None]
-            pad = r * 1e-6 + np.maximum(np.abs(c0), np.abs(c1)).max(axis=1, keepdims=True) * 1e-6
-            lowers = (np.minimum(c0, c1) - r - pad).astype(np.float32)
-            uppers = (np.maximum(c0, c1) + r + pad).astype(np.float32)
-            self.sphere_bvh = wp.Bvh(wp.array(lowers, dtype=wp.vec3, device=dev),
-                                     wp.array(uppers, dtype=wp.vec3, device=dev))
-            d.sph_bvh = wp.uint64(self.sphere_bvh.id)
+        prims = [(kind, j, kind.bounds(row)) for kind in KINDS if kind.bounds is not None
+                 for j, row in enumerate(rows[kind.table])]
+        self.analytic_bvh = None
+        d.bvh = wp.uint64(0)
+        d.bvh_prims = wp.zeros(1, dtype=wp.vec2i, device=dev)
+        if len(prims) < ANALYTIC_BVH_MIN:
+            return
+        lo = np.array([b[0] for _, _, b in prims], dtype=np.float64)
+        hi = np.array([b[1] for _, _, b in prims], dtype=np.float64)
+        # float32 rounding of the bounds must not cut off a hit: pad by a relative margin
+        pad = (hi - lo).max(axis=1, keepdims=True) * 1e-6 + np.maximum(np.abs(lo), np.abs(hi)).max(axis=1, keepdims=True) * 1e-6
+        self.analytic_bvh = wp.Bvh(wp.array((lo - pad).astype(np.float32), dtype=wp.vec3, device=dev),
+                                   wp.array((hi + pad).astype(np.float32), dtype=wp.vec3, device=dev))
+        d.bvh = wp.uint64(self.analytic_bvh.id)
+        d.bvh_prims = wp.array(np.array([(kind.tag, j) for kind, j, _ in prims], dtype=np.int32), dtype=wp.vec2i,
+                               device=dev)
 
 
 def render_params(scene: Scene, spp: int, seed: int, features: Features | None = None) -> RenderParams:

@@ -165,7 +165,8 @@ class SceneData:
 
     n_spheres: int
     spheres: wp.array(dtype=SphereRec)
-    sph_bvh: wp.uint64  # BVH over the spheres' (swept) bounds, 0 when they are few
+    bvh: wp.uint64  # BVH over the bounded analytic shapes (spheres, rectangles, disks), 0 when they are few
+    bvh_prims: wp.array(dtype=wp.vec2i)  # (kind, row) of each BVH primitive
     n_planes: int
     planes: wp.array(dtype=PlaneRec)
     n_rects: int

@@ -2,6 +2,9 @@
 how a description becomes a record, and (for shapes that can emit) how to sample a point of
 it as seen from a shading point.
 
+Bounded kinds also give their bounds: from ``ANALYTIC_BVH_MIN`` bounded shapes on, the builder
+puts them all in one BVH that ``trace`` walks instead of looping over each table.
+
 An area light is emission on a shape: ``RectLight``, ``SphereLight`` and ``DiskLight`` give
 their surface through ``.shape()``, the builder puts that surface in its kind's table with an
 emitting material, and an ``AreaLightRec`` names (kind tag, row). Light code never looks at
@@ -50,6 +53,23 @@ def _disk_row(s: Disk, mat: int) -> dict:
     return dict(c=s.center, n=_unit(s.normal), r=s.radius, mat=mat)
 
 
+def _sphere_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
+    c0, c1, r = np.asarray(row["c0"], np.float64), np.asarray(row["c1"], np.float64), row["r"]
+    return np.minimum(c0, c1) - r, np.maximum(c0, c1) + r  # swept over the motion
+
+
+def _rect_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
+    c, e1, e2 = (np.asarray(row[k], np.float64) for k in ("c", "e1", "e2"))
+    corners = np.array([c, c + e1, c + e2, c + e1 + e2])
+    return corners.min(axis=0), corners.max(axis=0)
+
+
+def _disk_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
+    c, n = np.asarray(row["c"], np.float64), np.asarray(row["n"], np.float64)
+    ext = row["r"] * np.sqrt(np.maximum(0.0, 1.0 - n * n))
+    return c - ext, c + ext
+
+
 @dataclass(frozen=True)
 class ShapeKind:
     tag: int  # KIND_*: reported by ray queries and id AOVs, named by area lights
@@ -57,13 +77,14 @@ class ShapeKind:
     table: str  # the SceneData field holding the rows (its count is ``"n_" + table``)
     record: type  # the row's wp.struct
     row: Callable[[object, int], dict]  # description (world space) and material index -> record fields
+    bounds: Callable[[dict], tuple] | None  # record fields -> (lower, upper) corners; None: unbounded
 
 
 KINDS = (
-    ShapeKind(KIND_SPHERE, Sphere, "spheres", SphereRec, _sphere_row),
-    ShapeKind(KIND_PLANE, Plane, "planes", PlaneRec, _plane_row),
-    ShapeKind(KIND_RECT, Rectangle, "rects", RectRec, _rect_row),
-    ShapeKind(KIND_DISK, Disk, "disks", DiskRec, _disk_row),
+    ShapeKind(KIND_SPHERE, Sphere, "spheres", SphereRec, _sphere_row, _sphere_bounds),
+    ShapeKind(KIND_PLANE, Plane, "planes", PlaneRec, _plane_row, None),
+    ShapeKind(KIND_RECT, Rectangle, "rects", RectRec, _rect_row, _rect_bounds),
+    ShapeKind(KIND_DISK, Disk, "disks", DiskRec, _disk_row, _disk_bounds),
 )
 BY_CLASS = {k.cls: k for k in KINDS}
 BY_TAG = {k.tag: k for k in KINDS}

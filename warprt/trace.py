@@ -146,6 +146,24 @@ def make_trace(F: Features) -> SimpleNamespace:
             c = c + (scene.spheres[i].c1 - c) * time
         return c
 
+    @wp.func(inline=True)
+    def bounded_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float,
+                    k: int, i: int) -> float:
+        """The hit t of the bounded analytic shape (kind k, row i) in (t_min, t_max), or -1."""
+        if k == KIND_SPHERE:
+            return intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, t_max)
+        if k == KIND_RECT:
+            return intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, t_min, t_max)
+        return intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, t_min, t_max)
+
+    @wp.func(inline=True)
+    def bounded_mat(scene: SceneData, k: int, i: int) -> int:
+        if k == KIND_SPHERE:
+            return scene.spheres[i].mat
+        if k == KIND_RECT:
+            return scene.rects[i].mat
+        return scene.disks[i].mat
+
     @wp.func
     def mesh_nearest(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> MeshHit:
         """Nearest triangle hit over all mesh instances in (t_min, t_max); index -1 for none."""
@@ -230,16 +248,10 @@ def make_trace(F: Features) -> SimpleNamespace:
         face = int(-1)
         bu = float(0.0)
         bv = float(0.0)
-        if scene.sph_bvh != wp.uint64(0):
-            query = wp.bvh_query_ray(scene.sph_bvh, o, d)
-            i = int(0)
-            while wp.bvh_query_next(query, i, best):
-                t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
-                if t >= 0.0:
-                    best = t
-                    kind = KIND_SPHERE
-                    index = i
-        else:
+        # kinds in the order spheres, planes, rectangles, disks; a hit replaces another only when
+        # strictly nearer. Many bounded shapes: planes first, then one BVH over the rest
+        use_bvh = scene.bvh != wp.uint64(0)
+        if not use_bvh:
             for i in range(scene.n_spheres):
                 t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
                 if t >= 0.0:
@@ -252,18 +264,30 @@ def make_trace(F: Features) -> SimpleNamespace:
                 best = t
                 kind = KIND_PLANE
                 index = i
-        for i in range(scene.n_rects):
-            t = intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, t_min, best)
-            if t >= 0.0:
-                best = t
-                kind = KIND_RECT
-                index = i
-        for i in range(scene.n_disks):
-            t = intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, t_min, best)
-            if t >= 0.0:
-                best = t
-                kind = KIND_DISK
-                index = i
+        if use_bvh:
+            query = wp.bvh_query_ray(scene.bvh, o, d)
+            j = int(0)
+            while wp.bvh_query_next(query, j, best):
+                k = scene.bvh_prims[j][0]
+                i = scene.bvh_prims[j][1]
+                t = bounded_hit(scene, o, d, t_min, best, time, k, i)
+                if t >= 0.0:
+                    best = t
+                    kind = k
+                    index = i
+        else:
+            for i in range(scene.n_rects):
+                t = intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, t_min, best)
+                if t >= 0.0:
+                    best = t
+                    kind = KIND_RECT
+                    index = i
+            for i in range(scene.n_disks):
+                t = intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, t_min, best)
+                if t >= 0.0:
+                    best = t
+                    kind = KIND_DISK
+                    index = i
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
@@ -383,14 +407,8 @@ def make_trace(F: Features) -> SimpleNamespace:
         """Fraction of light arriving along the shadow ray (o, d) over (0, t_max): 0 when an
         opaque surface blocks it; transparent surfaces multiply it by their kt per crossing."""
         T = wp.vec3(1.0, 1.0, 1.0)
-        if scene.sph_bvh != wp.uint64(0):
-            query = wp.bvh_query_ray(scene.sph_bvh, o, d)
-            i = int(0)
-            while wp.bvh_query_next(query, i, t_max):
-                T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
-                if wp.max(T) <= 0.0:
-                    return wp.vec3(0.0, 0.0, 0.0)
-        else:
+        use_bvh = scene.bvh != wp.uint64(0)
+        if not use_bvh:
             for i in range(scene.n_spheres):
                 T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
                 if wp.max(T) <= 0.0:
@@ -400,16 +418,29 @@ def make_trace(F: Features) -> SimpleNamespace:
                 T = wp.cw_mul(T, crossing(scene, scene.planes[i].mat))
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
-        for i in range(scene.n_rects):
-            if intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, 0.0, t_max) >= 0.0:
-                T = wp.cw_mul(T, crossing(scene, scene.rects[i].mat))
+        if use_bvh:
+            query = wp.bvh_query_ray(scene.bvh, o, d)
+            j = int(0)
+            while wp.bvh_query_next(query, j, t_max):
+                k = scene.bvh_prims[j][0]
+                i = scene.bvh_prims[j][1]
+                if k == KIND_SPHERE:
+                    T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
+                elif bounded_hit(scene, o, d, 0.0, t_max, time, k, i) >= 0.0:
+                    T = wp.cw_mul(T, crossing(scene, bounded_mat(scene, k, i)))
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
-        for i in range(scene.n_disks):
-            if intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, 0.0, t_max) >= 0.0:
-                T = wp.cw_mul(T, crossing(scene, scene.disks[i].mat))
-                if wp.max(T) <= 0.0:
-                    return wp.vec3(0.0, 0.0, 0.0)
+        else:
+            for i in range(scene.n_rects):
+                if intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, 0.0, t_max) >= 0.0:
+                    T = wp.cw_mul(T, crossing(scene, scene.rects[i].mat))
+                    if wp.max(T) <= 0.0:
+                        return wp.vec3(0.0, 0.0, 0.0)
+            for i in range(scene.n_disks):
+                if intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, 0.0, t_max) >= 0.0:
+                    T = wp.cw_mul(T, crossing(scene, scene.disks[i].mat))
+                    if wp.max(T) <= 0.0:
+                        return wp.vec3(0.0, 0.0, 0.0)
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 T = wp.cw_mul(T, mesh_transmittance(scene, o, d, t_max, time))
