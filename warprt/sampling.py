@@ -21,7 +21,9 @@ Samplers (``RenderSettings.sampler``):
   a pixel's samples is a (0, m, 2)-net in every 2D dimension.
 
 Sampling maps come with their densities: ``square_to_disk`` (concentric), ``square_to_cone``
-(uniform in a cone), ``square_to_cos_power`` (Phong lobe cos^n about +z).
+(uniform in a cone), ``square_to_cos_power`` (Phong lobe cos^n about +z),
+``square_to_spherical_rect`` (a rectangle uniformly in the solid angle it subtends, density 1/Ω;
+see the section at the end of this module).
 """
 
 from __future__ import annotations
@@ -270,3 +272,405 @@ def frame_from_z(z: wp.vec3, local: wp.vec3) -> wp.vec3:
     s = wp.vec3(b, sign + z[1] * z[1] * a, -z[1])
     return local[0] * t + local[1] * s + local[2] * z
 
+
+# --- spherical rectangles: solid-angle sampling of rectangle lights --------------------------------
+#
+# Ureña, Fajardo and King 2013, "An Area-Preserving Parametrization for Spherical Rectangles".
+# Conventions: a rectangle is ``corner + a*e1 + b*e2`` with (a, b) in [0, 1]^2 and e1 ⟂ e2 (check
+# with ``is_rectangle`` / ``is_rectangle_edges``; a sheared parallelogram must be area-sampled).
+# Its one-sidedness does not matter here: the solid angle is sampled from either side.
+#
+# Local frame at the shading point p: x along e1, y along e2, the rectangle in the plane z = -h
+# (h = distance from p to the rectangle's plane), spanning x in [x0, x0 + w], y in [y0, y0 + v].
+# All lengths are divided by |corner - p| + |e1| + |e2| first (the map is scale-invariant), so no
+# square or cube overflows however near or far p is.
+#
+# The sample is drawn in two steps, each the inverse of a cumulative solid angle:
+#   u0 = S(x) / Ω, S(x) = solid angle of the sub-rectangle [x0, x] × [y0, y1]
+#   u1 = (sinφ(y) - sinφ(y0)) / (sinφ(y1) - sinφ(y0)), sinφ(y) = y / sqrt(x² + h² + y²)
+# (the second is the solid-angle density along the line at x, integrated in y).
+#
+# x: the paper's closed form (written here as C(x) = asin(b0 s) + asin(b1 s), s = x/sqrt(x² + h²),
+# C(x) - C(x0) = S(x)) gives the first guess. It measures angles against π, so alone it is off by
+# about 1e-7·π/Ω in u (1e-3 at Ω = 1e-4 sr) and fails at grazing angles, where x = h·tan(...) is
+# ill-conditioned. Safeguarded Newton steps on S(x) = u0·Ω then bring x to float32 round-off
+# (one step in ordinary configurations, a few at grazing angles; at most SPHRECT_NEWTON_MAX).
+# S itself is evaluated without cancellation: the rectangle is cut by the lines x = 0 and y = 0
+# through the foot of p and each piece, reflected into x, y >= 0, is measured with Van Oosterom
+# and Strackee's triangle formula, whose terms are then all non-negative.
+# y: sinφ is linear in u1; 1 ± sinφ are carried as sums of non-negative terms, and one Newton
+# step on the difference of sines in conjugate form removes the rest of the round-off.
+#
+# Accuracy (float32, measured against a float64 inverse over random configurations): Ω to a few
+# 1e-7 relative and u to ~1e-6, except where the float32 inputs themselves do not determine the
+# answer: h below ~1e-5 of the coordinates' magnitude (Ω's relative error grows like 1e-7·|p|/h)
+# and samples packed within a few ulps of the foot of p.
+#
+# Below SPHRECT_MIN_SOLID_ANGLE (and for p in the rectangle's plane, a zero-area rectangle or any
+# non-finite intermediate) ``square_to_spherical_rect`` reports Ω = 0: the caller falls back to
+# area sampling, which is as good there (a tiny solid angle is nearly uniform in area).
+
+SPHRECT_MIN_SOLID_ANGLE = 1.0e-6  # sr
+SPHRECT_MIN_HEIGHT = 1.0e-12  # p nearer its plane than this, relative to |corner - p| + |e1| + |e2|, is in it
+SPHRECT_NEWTON_MAX = 10  # Newton/bisection steps on x at most (1 or 2 in ordinary configurations)
+RECT_COS_TOL = 1.0e-5  # |cos| of the angle between e1 and e2 still treated as a right angle
+
+
+def is_rectangle(e1, e2, tol: float = RECT_COS_TOL) -> bool:
+    """True when the parallelogram spanned by e1 and e2 is a rectangle that spherical-rectangle
+    sampling may take as exact: both edges non-zero and |e1·e2| <= tol·|e1||e2| (host helper,
+    float64; the density error of treating a near-rectangle as a rectangle is O(tol))."""
+    import numpy as np
+
+    a = np.asarray(e1, dtype=np.float64)
+    b = np.asarray(e2, dtype=np.float64)
+    la = float(np.linalg.norm(a))
+    lb = float(np.linalg.norm(b))
+    return la > 0.0 and lb > 0.0 and abs(float(np.dot(a, b))) <= tol * la * lb
+
+
+@wp.func
+def is_rectangle_edges(e1: wp.vec3, e2: wp.vec3) -> bool:
+    """Device twin of ``is_rectangle``: non-zero edges, |e1·e2| <= RECT_COS_TOL·|e1||e2|."""
+    l1 = wp.length(e1)
+    l2 = wp.length(e2)
+    return l1 > 0.0 and l2 > 0.0 and wp.abs(wp.dot(e1, e2)) <= RECT_COS_TOL * l1 * l2
+
+
+@wp.func
+def sin_diff(ya: float, yb: float, d2: float) -> float:
+    """ya/sqrt(d2 + ya²) - yb/sqrt(d2 + yb²) without cancellation (conjugate form when ya and yb
+    have the same sign)."""
+    ra = wp.sqrt(d2 + ya * ya)
+    rb = wp.sqrt(d2 + yb * yb)
+    if ya * yb > 0.0:
+        return d2 * (ya - yb) * (ya + yb) / (ra * rb * (ya * rb + yb * ra))
+    return ya / ra - yb / rb
+
+
+@wp.func
+def tri_half_angle(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, h: float,
+                   ra: float, rb: float, rc: float) -> wp.vec2:
+    """(cos, sin)·k, k > 0, of half the solid angle of the triangle abc in the plane z = -h seen
+    from the origin (Van Oosterom-Strackee: tan(Ω/2) = |a·(b×c)| / (abc + (a·b)c + (a·c)b +
+    (b·c)a)); ra, rb, rc are the vertices' distances. Scaled to cos + sin = 1 (no underflow)."""
+    h2 = h * h
+    num = h * wp.abs((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
+    den = ra * rb * rc + (ax * bx + ay * by + h2) * rc + (ax * cx + ay * cy + h2) * rb + (bx * cx + by * cy + h2) * ra
+    t = wp.abs(den) + num
+    if t > 0.0:
+        return wp.vec2(den / t, num / t)
+    return wp.vec2(1.0, 0.0)
+
+
+@wp.func
+def cmul(a: wp.vec2, b: wp.vec2) -> wp.vec2:
+    return wp.vec2(a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0])
+
+
+@wp.func
+def quad_half_angle(a0: float, a1: float, b0: float, b1: float, h: float) -> wp.vec2:
+    """Half the solid angle of [a0, a1] × [b0, b1] (0 <= a0 <= a1, 0 <= b0 <= b1) in the plane
+    z = -h, as a complex number (two triangles). In this quadrant every dot product between
+    vertices is at least h², so every term of the formula is non-negative: no cancellation."""
+    h2 = h * h
+    r00 = wp.sqrt(a0 * a0 + b0 * b0 + h2)
+    r10 = wp.sqrt(a1 * a1 + b0 * b0 + h2)
+    r11 = wp.sqrt(a1 * a1 + b1 * b1 + h2)
+    r01 = wp.sqrt(a0 * a0 + b1 * b1 + h2)
+    t1 = tri_half_angle(a0, b0, a1, b0, a1, b1, h, r00, r10, r11)
+    t2 = tri_half_angle(a0, b0, a1, b1, a0, b1, h, r00, r11, r01)
+    return cmul(t1, t2)
+
+
+@wp.func
+def rect_solid_angle_local(x0: float, y0: float, w: float, v: float, h: float) -> float:
+    """Solid angle of [x0, x0 + w] × [y0, y0 + v] in the plane z = -h seen from the origin (h > 0).
+
+    The rectangle is cut along x = 0 and y = 0 where they cross it, and each piece is reflected
+    into the quadrant x, y >= 0 (``quad_half_angle``, exact to round-off there). The pieces' half
+    angles are added as arguments of a product of complex numbers, one atan2 at the end
+    (Ω/2 < π; a result pushed just below -π by round-off is put back)."""
+    x1 = x0 + w
+    y1 = y0 + v
+    # pieces along x: [xa0, xa1] and, when x = 0 cuts the rectangle, [0, xb1]
+    xa0 = float(0.0)
+    xa1 = float(0.0)
+    xb1 = float(-1.0)
+    if x0 >= 0.0:
+        xa0 = x0
+        xa1 = x1
+    elif x1 <= 0.0:
+        xa0 = -x1
+        xa1 = -x0
+    else:
+        xa1 = -x0
+        xb1 = x1
+    ya0 = float(0.0)
+    ya1 = float(0.0)
+    yb1 = float(-1.0)
+    if y0 >= 0.0:
+        ya0 = y0
+        ya1 = y1
+    elif y1 <= 0.0:
+        ya0 = -y1
+        ya1 = -y0
+    else:
+        ya1 = -y0
+        yb1 = y1
+    z = quad_half_angle(xa0, xa1, ya0, ya1, h)
+    if xb1 >= 0.0:
+        z = cmul(z, quad_half_angle(0.0, xb1, ya0, ya1, h))
+    if yb1 >= 0.0:
+        z = cmul(z, quad_half_angle(xa0, xa1, 0.0, yb1, h))
+        if xb1 >= 0.0:
+            z = cmul(z, quad_half_angle(0.0, xb1, 0.0, yb1, h))
+    half = wp.atan2(z[1], z[0])
+    if half < 0.0:
+        half += 2.0 * wp.pi
+    return 2.0 * half
+
+
+@wp.struct
+class SphRect:
+    """A rectangle in p's local frame (lengths scaled by 1/scale), with its solid angle."""
+
+    x0: float
+    y0: float
+    w: float
+    v: float
+    h: float
+    omega: float  # 0 when degenerate
+
+
+@wp.func
+def sphrect_setup(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3) -> SphRect:
+    r = SphRect()
+    l1 = wp.length(e1)
+    l2 = wp.length(e2)
+    d = corner - p
+    scale = wp.length(d) + l1 + l2
+    r.omega = 0.0
+    if l1 <= 0.0 or l2 <= 0.0 or not (scale < 3.0e38):
+        return r
+    ex = e1 / l1
+    ey = e2 / l2
+    ez = wp.cross(ex, ey)
+    lz = wp.length(ez)
+    if lz <= 0.0:
+        return r
+    inv = 1.0 / scale
+    r.x0 = wp.dot(d, ex) * inv
+    r.y0 = wp.dot(d, ey) * inv
+    r.h = wp.abs(wp.dot(d, ez)) / lz * inv
+    r.w = l1 * inv
+    r.v = l2 * inv
+    if r.h > SPHRECT_MIN_HEIGHT and r.w > 0.0 and r.v > 0.0:
+        om = rect_solid_angle_local(r.x0, r.y0, r.w, r.v, r.h)
+        if wp.isfinite(om):
+            r.omega = wp.min(om, 2.0 * wp.pi)
+    return r
+
+
+@wp.func
+def spherical_rect_solid_angle(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3) -> float:
+    """Solid angle (sr) of the rectangle corner + [0,1]·e1 + [0,1]·e2 seen from p, from either side;
+    0 for p in its plane or a zero-area rectangle. Accurate to float32 round-off relative to Ω
+    (no threshold applied here)."""
+    return sphrect_setup(p, corner, e1, e2).omega
+
+
+@wp.func
+def sphrect_x_cdf(r: SphRect, dx: float) -> float:
+    """S(x0 + dx): solid angle of the part of the rectangle with x in [x0, x0 + dx]."""
+    return rect_solid_angle_local(r.x0, r.y0, dx, r.v, r.h)
+
+
+@wp.func
+def sphrect_x_guess(r: SphRect, u0: float) -> float:
+    """The paper's closed-form dx in [0, w] for S(x0 + dx) = u0·Ω (see the section comment for
+    its accuracy); ``sphrect_sample_x`` refines it."""
+    x0 = r.x0
+    y0 = r.y0
+    y1 = y0 + r.v
+    h = r.h
+    h2 = h * h
+    # C(x) = asin(b0 s) + asin(b1 s), s = x/sqrt(x² + h²), is S(x) up to a constant. Solving
+    # C(x) = T = C(x0) + u0·Ω gives s = sin T / sqrt(b0² + b1² + 2 b0 b1 cos T) (b0 + b1 > 0);
+    # the denominator is taken as a sum of two non-negative terms. sin T and cos T come from the
+    # angle-sum formulas (sin and cos of each asin are algebraic): two trigonometric calls.
+    b0 = wp.clamp(-y0 / wp.sqrt(y0 * y0 + h2), -1.0, 1.0)
+    b1 = wp.clamp(y1 / wp.sqrt(y1 * y1 + h2), -1.0, 1.0)
+    s0 = x0 / wp.sqrt(x0 * x0 + h2)
+    sa = b0 * s0
+    sb = b1 * s0
+    ca = wp.sqrt(wp.max(0.0, 1.0 - sa * sa))
+    cb = wp.sqrt(wp.max(0.0, 1.0 - sb * sb))
+    sc = sa * cb + ca * sb  # sin C(x0)
+    cc = ca * cb - sa * sb  # cos C(x0)
+    phi = u0 * r.omega
+    sp = wp.sin(phi)
+    cp = wp.cos(phi)
+    sin_t = sc * cp + cc * sp
+    # 1 - cos T and 1 + cos T without cancellation: 1 ∓ cos(C + φ) = (1 ∓ cos C) ± cos C (1 - cos φ)
+    # ± sin C sin φ, with 1 ∓ cos C = sin² C / (1 ± cos C) on the side where that is accurate
+    omc_p = 2.0 * wp.sin(0.5 * phi) * wp.sin(0.5 * phi)  # 1 - cos φ
+    den = float(0.0)
+    if b0 * b1 < 0.0:
+        omc_c = wp.where(cc > 0.0, sc * sc / (1.0 + cc), 1.0 - cc)
+        omc_t = omc_c + cc * omc_p + sc * sp  # 1 - cos T
+        bsum = sin_diff(y1, y0, h2)
+        den = bsum * bsum - 2.0 * b0 * b1 * wp.max(omc_t, 0.0)
+    else:
+        opc_c = wp.where(cc < 0.0, sc * sc / (1.0 - cc), 1.0 + cc)
+        opc_t = opc_c - cc * omc_p - sc * sp  # 1 + cos T
+        den = (b0 - b1) * (b0 - b1) + 2.0 * b0 * b1 * wp.max(opc_t, 0.0)
+    s = wp.clamp(sin_t / wp.sqrt(wp.max(den, 1.0e-30)), -1.0, 1.0)
+    dx = wp.clamp(h * s / wp.sqrt(wp.max((1.0 - s) * (1.0 + s), 1.0e-30)) - x0, 0.0, r.w)
+    if not wp.isfinite(dx):
+        dx = u0 * r.w
+    return dx
+
+
+@wp.func
+def sphrect_sample_x(r: SphRect, u0: float) -> float:
+    """dx in [0, w] with S(x0 + dx) = u0·Ω: ``sphrect_x_guess``, then Newton steps in the angle
+    θ = atan(x/H), H² = h² + (distance from y = 0 to [y0, y1])², in which S is smooth whether the
+    foot of p lies in the rectangle's y range (dS/dθ = sinφ(y1) - sinφ(y0) in (0, 2]) or beside it
+    (dS/dx nearly constant for |x| < H, decaying beyond)."""
+    x0 = r.x0
+    y0 = r.y0
+    y1 = y0 + r.v
+    h = r.h
+    h2 = h * h
+    dx = sphrect_x_guess(r, u0)
+    # Newton in θ, safeguarded by bisection on the bracket [lo, hi] of dx; the residual is
+    # accurate (see rect_solid_angle_local). The step is taken on x directly, without forming θ:
+    # x' = H·tan(θ + dθ) = x + tan(dθ)·(x² + H²)/(H - x·tan(dθ)).
+    y_near = wp.max(0.0, wp.max(y0, -y1))
+    big_h2 = h2 + y_near * y_near
+    big_h = wp.sqrt(big_h2)
+    target = u0 * r.omega
+    lo = float(0.0)
+    hi = r.w
+    it = int(0)
+    while it < SPHRECT_NEWTON_MAX:
+        it += 1
+        res = rect_solid_angle_local(x0, y0, dx, r.v, h) - target
+        if res == 0.0:
+            break
+        if res < 0.0:
+            lo = dx
+        else:
+            hi = dx
+        x = x0 + dx
+        d2 = x * x + h2
+        dth = -res * d2 * big_h / (h * (x * x + big_h2) * sin_diff(y1, y0, d2))  # -res / (dS/dθ)
+        nxt = 0.5 * (lo + hi)
+        newton = False
+        if wp.abs(dth) < 1.5:
+            tn = dth * (1.0 + dth * dth * (1.0 / 3.0))  # tan, to 2e-9 relative below 0.01
+            if wp.abs(dth) > 0.01:
+                tn = wp.tan(dth)
+            q = big_h - x * tn
+            if q > 0.0:
+                cand = dx + tn * (x * x + big_h2) / q
+                if cand >= lo and cand <= hi:
+                    nxt = cand
+                    newton = True
+        dx = nxt
+        if newton and wp.abs(res) <= 1.0e-5 * r.omega:
+            break  # converged: the step just taken leaves an error of order res²
+    return dx
+
+
+@wp.func
+def sphrect_sample_y(r: SphRect, dx: float, u1: float) -> float:
+    """dy in [0, v] on the line x = x0 + dx, uniform in solid angle: sinφ(y) = y/sqrt(d² + y²),
+    d² = x² + h², is linear in u1. 1 ± sinφ are carried as sums of non-negative terms (no
+    cancellation near the ends of the range), then y = d·sinφ / sqrt((1 + sinφ)(1 - sinφ))."""
+    x = r.x0 + dx
+    d2 = x * x + r.h * r.h
+    y0 = r.y0
+    y1 = y0 + r.v
+    r0 = wp.sqrt(d2 + y0 * y0)
+    r1 = wp.sqrt(d2 + y1 * y1)
+    g0 = float(0.0)  # 1 + sinφ(y0)
+    if y0 < 0.0:
+        g0 = d2 / (r0 * (r0 - y0))
+    else:
+        g0 = 1.0 + y0 / r0
+    g1 = float(0.0)  # 1 - sinφ(y1)
+    if y1 > 0.0:
+        g1 = d2 / (r1 * (r1 + y1))
+    else:
+        g1 = 1.0 - y1 / r1
+    total = sin_diff(y1, y0, d2)
+    a = g0 + u1 * total  # 1 + sinφ
+    b = g1 + (1.0 - u1) * total  # 1 - sinφ
+    sv = float(0.0)  # sinφ, taken from its most accurate form
+    if a < 0.5:
+        sv = a - 1.0
+    elif b < 0.5:
+        sv = 1.0 - b
+    else:
+        sv = y0 / r0 + u1 * total
+    y = wp.sqrt(d2) * sv / wp.sqrt(a * b)
+    dy = wp.clamp(y - y0, 0.0, r.v)
+    if not wp.isfinite(dy):
+        dy = u1 * r.v
+    # one Newton step on sinφ(y) - sinφ(y0) = u1·total, the difference in conjugate form
+    y = y0 + dy
+    ry = wp.sqrt(d2 + y * y)
+    dy = wp.clamp(dy - (sin_diff(y, y0, d2) - u1 * total) * ry * ry * ry / d2, 0.0, r.v)
+    return dy
+
+
+@wp.func
+def square_to_spherical_rect(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3, u: wp.vec2) -> wp.vec4:
+    """A point on the rectangle corner + a·e1 + b·e2 (a, b in [0, 1], e1 ⟂ e2) whose direction from
+    p is uniform in the solid angle the rectangle subtends; returns (y, Ω), so the density of the
+    direction is 1/Ω. Either side of the rectangle is sampled.
+
+    Returns Ω = 0 (w component) when Ω < SPHRECT_MIN_SOLID_ANGLE, p lies in the rectangle's
+    plane, the rectangle has zero area or the computation fails; xyz is then the area sample
+    corner + u0·e1 + u1·e2, for the caller's area-sampling fallback. The point always lies on the
+    rectangle (a and b are clamped to [0, 1])."""
+    area_y = corner + u[0] * e1 + u[1] * e2
+    r = sphrect_setup(p, corner, e1, e2)
+    if not (r.omega >= SPHRECT_MIN_SOLID_ANGLE):
+        return wp.vec4(area_y[0], area_y[1], area_y[2], 0.0)
+    dx = sphrect_sample_x(r, u[0])
+    dy = sphrect_sample_y(r, dx, u[1])
+    a = wp.clamp(dx / r.w, 0.0, 1.0)
+    b = wp.clamp(dy / r.v, 0.0, 1.0)
+    if not (wp.isfinite(a) and wp.isfinite(b)):
+        return wp.vec4(area_y[0], area_y[1], area_y[2], 0.0)
+    y = corner + a * e1 + b * e2
+    return wp.vec4(y[0], y[1], y[2], r.omega)
+
+
+@wp.func
+def spherical_rect_to_square(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3, y: wp.vec3) -> wp.vec2:
+    """Inverse of ``square_to_spherical_rect``: the (u0, u1) that maps to the point y of the
+    rectangle (y is projected onto it and clamped). Where the forward map reports Ω = 0 it
+    inverts the area map instead: ((y - corner)·e1/|e1|², (y - corner)·e2/|e2|²)."""
+    q = y - corner
+    l11 = wp.dot(e1, e1)
+    l22 = wp.dot(e2, e2)
+    a = float(0.0)
+    b = float(0.0)
+    if l11 > 0.0:
+        a = wp.clamp(wp.dot(q, e1) / l11, 0.0, 1.0)
+    if l22 > 0.0:
+        b = wp.clamp(wp.dot(q, e2) / l22, 0.0, 1.0)
+    r = sphrect_setup(p, corner, e1, e2)
+    if not (r.omega >= SPHRECT_MIN_SOLID_ANGLE):
+        return wp.vec2(a, b)
+    dx = a * r.w
+    x = r.x0 + dx
+    dd2 = x * x + r.h * r.h
+    u0 = sphrect_x_cdf(r, dx) / r.omega
+    yv = r.y0 + b * r.v
+    u1 = sin_diff(yv, r.y0, dd2) / sin_diff(r.y0 + r.v, r.y0, dd2)
+    return wp.vec2(wp.clamp(u0, 0.0, 1.0), wp.clamp(u1, 0.0, 1.0))
