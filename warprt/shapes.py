@@ -25,7 +25,7 @@ from .geometry import intersect_sphere, max_abs
 from .records import (
     KIND_DISK, KIND_PLANE, KIND_RECT, KIND_SPHERE, DiskRec, PlaneRec, RectRec, SceneData, SphereRec,
 )
-from .sampling import frame_from_z, square_to_cone, square_to_disk
+from .sampling import frame_from_z, is_rectangle_edges, square_to_cone, square_to_disk, square_to_spherical_rect
 from .scene.description import Disk, Plane, Rectangle, Sphere
 
 
@@ -151,9 +151,33 @@ def planar_emitter(y: wp.vec3, ln: wp.vec3, area: float, mag: float, p: wp.vec3)
 
 @wp.func(inline=True)
 def sample_rect_emitter(rec: RectRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+    """A rectangle: uniform in the solid angle it subtends from p (spherical rectangles; the
+    irradiance estimate then varies only with cosθ at p); a sheared parallelogram, or a solid angle
+    too small to matter, uniform by area."""
+    mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
+    if not (wp.dot(rec.n, p - rec.c) > 0.0):
+        return EmitterSample()  # p behind (or in the plane of) a one-sided emitter: no light
+    if is_rectangle_edges(rec.e1, rec.e2):
+        q = square_to_spherical_rect(p, rec.c, rec.e1, rec.e2, u)
+        if q[3] > 0.0:
+            e = EmitterSample()
+            y = wp.vec3(q[0], q[1], q[2])
+            to_y = y - p
+            dist = wp.length(to_y)
+            if dist <= 0.0:
+                return e
+            l = to_y / dist
+            if -wp.dot(rec.n, l) <= 0.0:
+                return e  # grazing: the point rounded onto the emitter's back
+            e.ok = 1
+            e.y = y
+            e.l = l
+            e.dist = dist
+            e.inv_pdf = q[3]  # 1 / (1/Ω)
+            e.mag = mag
+            return e
     y = rec.c + u[0] * rec.e1 + u[1] * rec.e2
-    area = wp.length(wp.cross(rec.e1, rec.e2))
-    return planar_emitter(y, rec.n, area, max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2), p)
+    return planar_emitter(y, rec.n, wp.length(wp.cross(rec.e1, rec.e2)), mag, p)
 
 
 @wp.func(inline=True)
