@@ -32,7 +32,7 @@ from .film import FilmData, luminance, sanitize
 from .geometry import spawn_origin
 from .lights import make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
-from .sampling import frame_from_z, hash2, sample_1d, sample_2d, square_to_cos_power
+from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
 from .trace import make_trace
 
@@ -64,6 +64,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
     trace = make_trace(F)
     lights = make_lights(F)
     closest_hit = trace.closest_hit
+    stack_size = STACK_SIZE if F.secondary else 1  # only the camera ray without secondary rays
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
 
@@ -81,19 +82,20 @@ def kernels_for(F: Features) -> SimpleNamespace:
         acc_sq = film.accum_sq[pixel]
         rays = int(0)
         dropped = int(0)
-        stack = wp.zeros(shape=STACK_SIZE, dtype=RayEntry)
+        stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
+        pkey = pixel_key(params.seed, pixel)
         for s in range(s0, s1):
             # --- camera sample: film, lens, time
-            uf = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_FILM))
+            uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
             time = cam.t_open
             if wp.static(F.motion):
                 if params.moving != 0 and cam.t_close > cam.t_open:
-                    ut = sample_1d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_TIME))
+                    ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
                     time = cam.t_open + (cam.t_close - cam.t_open) * ut
             ul = wp.vec2(0.5, 0.5)
             if wp.static(F.lens):
                 if cam.lens_radius > 0.0:
-                    ul = sample_2d(params.sampler, params.seed, pixel, s, params.spp, wp.uint32(DIM_LENS))
+                    ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
             ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
 
             L = wp.vec3(0.0, 0.0, 0.0)
@@ -142,7 +144,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     # small enough for the C++ compiler to inline (docs/architecture.md,
                     # "Features and compile cost")
                     if scene.n_alights > 0:
-                        al = area_lights_direct(scene, params, pixel, s, e.key, h.p, origin, ng, n, v,
+                        al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
                                                 scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
                         rays += int(al[3])
                         local += wp.vec3(al[0], al[1], al[2])
@@ -173,7 +175,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                                     if wp.static(F.glossy):
                                         frost = scene.mats[h.mat].frost
                                         if frost > 0.0:
-                                            ug = sample_2d(params.sampler, params.seed, pixel, s, params.spp,
+                                            ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
                                                            hash2(e.key, wp.uint32(KEY_FROSTED_REFRACT)))
                                             tdir = lobe(ug, tdir, frost)
                                     tw = mul_sat(e.w, w_refr)
@@ -195,7 +197,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                             if wp.static(F.glossy):
                                 gloss = scene.mats[h.mat].gloss
                                 if gloss > 0.0:
-                                    ug = sample_2d(params.sampler, params.seed, pixel, s, params.spp,
+                                    ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
                                                    hash2(e.key, wp.uint32(KEY_GLOSSY_REFLECT)))
                                     r = lobe(ug, r, gloss)
                             if wp.dot(r, ng) > 0.0:

@@ -17,7 +17,7 @@ import warp as wp
 from ._warp import build_once
 from .geometry import max_abs, spawn_offset
 from .records import Features, RenderParams, SceneData
-from .sampling import hash2, sample_2d
+from .sampling import hash2, sample_2d_keyed
 from .shading import blinn_phong, mul_sat
 from .shapes import sample_emitter
 from .trace import make_trace
@@ -31,12 +31,12 @@ def make_lights(F: Features) -> SimpleNamespace:
     shadow = make_trace(F).shadow
 
     @wp.func
-    def area_lights_direct(scene: SceneData, params: RenderParams, pixel: int, sample: int, key: wp.uint32,
+    def area_lights_direct(scene: SceneData, params: RenderParams, pkey: wp.uint32, sample: int, key: wp.uint32,
                            p: wp.vec3, origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3,
                            p_exp: float, time: float) -> wp.vec4:
         """Direct light from the area lights: ``samples`` stratified shadow rays per light (rgb,
-        shadow rays used in w). ``ng``/``n`` are the geometric/shading normals turned towards the
-        viewer, ``v`` the direction to it."""
+        shadow rays used in w). ``pkey`` is the pixel's ``pixel_key``; ``ng``/``n`` are the
+        geometric/shading normals turned towards the viewer, ``v`` the direction to it."""
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for j in range(scene.n_alights):
@@ -44,7 +44,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             acc = wp.vec3(0.0, 0.0, 0.0)
             dim = hash2(key, wp.uint32(LIGHT_DIM_BASE + j))
             for k in range(ns):
-                u = sample_2d(params.sampler, params.seed, pixel, sample * ns + k, params.spp * ns, dim)
+                u = sample_2d_keyed(params.sampler, pkey, sample * ns + k, params.spp * ns, dim)
                 e = sample_emitter(scene, scene.alights[j].kind, scene.alights[j].shape, p, u)
                 if e.ok == 0:
                     continue

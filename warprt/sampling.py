@@ -170,7 +170,13 @@ def grid_shape_x(n: int) -> int:
 @wp.func
 def sample_2d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, dim: wp.uint32) -> wp.vec2:
     """The 2D sample of dimension ``dim`` for sample ``index`` of ``pixel`` (spp samples planned)."""
-    pkey = pixel_key(seed, pixel)
+    return sample_2d_keyed(sampler, pixel_key(seed, pixel), index, spp, dim)
+
+
+@wp.func
+def sample_2d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp.uint32) -> wp.vec2:
+    """``sample_2d`` for the pixel whose ``pixel_key(seed, pixel)`` is ``pkey`` (a kernel computes
+    it once per pixel rather than once per sample and dimension)."""
     key = hash2(pkey, dim)
     if sampler == SAMPLER_INDEPENDENT:
         h = hash2(key, wp.uint32(index))
@@ -206,9 +212,15 @@ def sample_1d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, d
     (a 2D grid would fill only nx of the spp strata along one axis); ``independent`` and
     ``sobol``: the first coordinate of ``sample_2d`` (Sobol's first dimension, scrambled van der
     Corput, is already stratified at every power-of-two prefix)."""
+    return sample_1d_keyed(sampler, pixel_key(seed, pixel), index, spp, dim)
+
+
+@wp.func
+def sample_1d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp.uint32) -> float:
+    """``sample_1d`` for the pixel whose ``pixel_key(seed, pixel)`` is ``pkey``."""
     if sampler == SAMPLER_INDEPENDENT or sampler == SAMPLER_SOBOL:
-        return sample_2d(sampler, seed, pixel, index, spp, dim)[0]
-    key = hash2(pixel_key(seed, pixel), dim)
+        return sample_2d_keyed(sampler, pkey, index, spp, dim)[0]
+    key = hash2(pkey, dim)
     n = wp.max(spp, 1)
     rnd = index / n  # samples beyond spp start a new round of strata
     s = index - rnd * n

@@ -86,7 +86,7 @@ def blinn_phong(n: wp.vec3, l: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3, p:
     h = l + v
     hl = wp.length(h)
     spec = float(0.0)
-    if hl > 0.0:
+    if hl > 0.0 and wp.max(ks) > 0.0:  # (the power costs a log and an exp: skipped for ks = 0)
         spec = phong_power(wp.dot(n, h / hl), p)
     return kd * ndotl + ks * spec
 
