@@ -375,10 +375,10 @@ def make_trace(F: Features) -> SimpleNamespace:
             d_obj = dir_to_object(pose, d)
             kt = crossing(scene, scene.insts[i].mat)
             if wp.max(kt) <= 0.0:
-                if wp.mesh_query_ray_anyhit(scene.insts[i].mesh, o_obj, d_obj, t_max):
-                    # any hit at all: make sure it is not the surface the ray leaves
-                    if mesh_first_hit(scene.insts[i].mesh, o_obj, d_obj, t_max).index >= 0:
-                        return wp.vec3(0.0, 0.0, 0.0)
+                # the nearest hit, so that the surface the ray leaves can be told apart (an any-hit
+                # query can stop on it, and confirming a hit took a second traversal)
+                if mesh_first_hit(scene.insts[i].mesh, o_obj, d_obj, t_max).index >= 0:
+                    return wp.vec3(0.0, 0.0, 0.0)
             else:
                 # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
                 # triangle from the barycentrics (error: ulps of the mesh coordinates, not of the
