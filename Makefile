@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
 
-.PHONY: render test bench install clean
+.PHONY: render test bench bench-peers install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,12 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run
+
+# warprt against Mitsuba 3 (the optional `peers` extra); Mitsuba's fast llvm_ad_rgb variant also
+# needs the LLVM shared library (e.g. apt-get install libllvm19), else it falls back to scalar_rgb
+bench-peers: $(STAMP)
+	$(PY) -m pip install --quiet -e ".[peers]"
+	$(PY) -m benchmarks.peers $(PEERS_ARGS)
 
 clean:
 	rm -rf out .cache .pytest_cache
