@@ -339,7 +339,8 @@ def validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
     except (TypeError, ValueError):
         raise SceneError("faces must be integers", "faces") from None
     if f_in.size and not np.issubdtype(f_in.dtype, np.integer):
-        if not np.issubdtype(f_in.dtype, np.floating) or not np.all(np.mod(f_in, 1) == 0):
+        if (not np.issubdtype(f_in.dtype, np.floating) or not np.isfinite(f_in).all()
+                or not np.all(np.mod(f_in, 1) == 0)):
             raise SceneError("faces must be integer vertex indices", "faces")
     if f_in.size and (f_in.ndim != 2 or f_in.shape[1] != 3):
         raise SceneError(f"faces must have shape (M, 3) (triangles), got {f_in.shape}", "faces")
