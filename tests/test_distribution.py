@@ -44,8 +44,15 @@ def footprint_points(i: int, j: int, k: int = 6) -> np.ndarray:
 # --- area lights ------------------------------------------------------------------------------
 
 
-def test_rectangle_light_irradiance_matches_polygon_formula_and_is_unbiased():
-    corner, e1, e2 = np.array([-0.5, 2.0, -0.3]), np.array([1.2, 0.0, 0.0]), np.array([0.0, 0.0, 0.8])
+@pytest.mark.parametrize("height", [2.0, 12.0], ids=["near: solid-angle sampling", "far: area sampling"])
+def test_rectangle_light_irradiance_matches_polygon_formula_and_is_unbiased(height):
+    """Near the light (its size at least shapes.SPHRECT_NEAR of its distance) points are drawn
+    uniformly in its solid angle, farther uniformly by area: both against the closed form."""
+    from warprt.shapes import SPHRECT_NEAR
+
+    corner, e1, e2 = np.array([-0.5, height, -0.3]), np.array([1.2, 0.0, 0.0]), np.array([0.0, 0.0, 0.8])
+    size = np.linalg.norm(e1) + np.linalg.norm(e2)
+    assert (size >= SPHRECT_NEAR * (height - 0.0)) == (height < 5)  # the two regimes
     le, kd = 3.0, 0.7
     w = h = 10
     scene = warprt.Scene(

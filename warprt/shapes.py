@@ -92,6 +92,8 @@ BY_TAG = {k.tag: k for k in KINDS}
 
 # --- sampling an emitting shape -----------------------------------------------------------------
 
+SPHRECT_NEAR = 0.25  # (|e1| + |e2|) / distance from which a rectangle light is sampled by solid angle
+
 
 @wp.struct
 class EmitterSample:
@@ -151,13 +153,18 @@ def planar_emitter(y: wp.vec3, ln: wp.vec3, area: float, mag: float, p: wp.vec3)
 
 @wp.func(inline=True)
 def sample_rect_emitter(rec: RectRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
-    """A rectangle: uniform in the solid angle it subtends from p (spherical rectangles; the
-    irradiance estimate then varies only with cosθ at p); a sheared parallelogram, or a solid angle
-    too small to matter, uniform by area."""
+    """A rectangle near p: uniform in the solid angle it subtends (spherical rectangles; the
+    irradiance estimate then varies only with cosθ at p); a far one, a sheared parallelogram, or
+    a solid angle too small to matter: uniform by area. Both estimators are unbiased."""
     mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
     if not (wp.dot(rec.n, p - rec.c) > 0.0):
         return EmitterSample()  # p behind (or in the plane of) a one-sided emitter: no light
-    if is_rectangle_edges(rec.e1, rec.e2):
+    # near a rectangle (its size at least SPHRECT_NEAR of its distance) the area-sampling weight
+    # cosθ'/r² varies across it and solid-angle sampling pays for its cost (~250 ns against
+    # ~10 ns); farther, both weights are nearly constant and area sampling is as good
+    centre = rec.c + 0.5 * (rec.e1 + rec.e2)
+    near = wp.length(rec.e1) + wp.length(rec.e2) >= SPHRECT_NEAR * wp.length(centre - p)
+    if near and is_rectangle_edges(rec.e1, rec.e2):
         q = square_to_spherical_rect(p, rec.c, rec.e1, rec.e2, u)
         if q[3] > 0.0:
             e = EmitterSample()
