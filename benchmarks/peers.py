@@ -72,11 +72,7 @@ MARK_END = "<!-- peers:end -->"
 
 def _ground(material: str = "ground") -> warprt.Plane:
     """The ground y = 0. Mitsuba has no infinite plane: the export makes it a square of half side
-    GROUND_HALF, and the study checks that no pixel sees the plane beyond that square. (A warprt
-    Rectangle that large would not do: warprt offsets shadow rays by 2^-17 of the primitive's
-    coordinate magnitude, corner and edges included, which for a 200-unit square lifts them 3e-3
-    off the ground and moves hard shadow edges by a third of a pixel; a Plane's offset follows
-    the hit point.)"""
+    GROUND_HALF, and the study checks that no pixel sees the plane beyond that square."""
     return warprt.Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 1.0, 0.0), material=material)
 
 

@@ -398,6 +398,17 @@ def quad_half_angle(a0: float, a1: float, b0: float, b1: float, h: float) -> wp.
 
 
 @wp.func
+def fold_interval(a0: float, a1: float) -> wp.vec3:
+    """[a0, a1] folded onto a >= 0 by the reflection a -> -a: the piece (lo, hi) it covers there,
+    and the upper end of the second piece [0, b1] when 0 cuts the interval (-1 when it does not)."""
+    if a0 >= 0.0:
+        return wp.vec3(a0, a1, -1.0)
+    if a1 <= 0.0:
+        return wp.vec3(-a1, -a0, -1.0)
+    return wp.vec3(0.0, -a0, a1)
+
+
+@wp.func
 def rect_solid_angle_local(x0: float, y0: float, w: float, v: float, h: float) -> float:
     """Solid angle of [x0, x0 + w] × [y0, y0 + v] in the plane z = -h seen from the origin (h > 0).
 
@@ -407,31 +418,15 @@ def rect_solid_angle_local(x0: float, y0: float, w: float, v: float, h: float) -
     (Ω/2 < π; a result pushed just below -π by round-off is put back)."""
     x1 = x0 + w
     y1 = y0 + v
-    # pieces along x: [xa0, xa1] and, when x = 0 cuts the rectangle, [0, xb1]
-    xa0 = float(0.0)
-    xa1 = float(0.0)
-    xb1 = float(-1.0)
-    if x0 >= 0.0:
-        xa0 = x0
-        xa1 = x1
-    elif x1 <= 0.0:
-        xa0 = -x1
-        xa1 = -x0
-    else:
-        xa1 = -x0
-        xb1 = x1
-    ya0 = float(0.0)
-    ya1 = float(0.0)
-    yb1 = float(-1.0)
-    if y0 >= 0.0:
-        ya0 = y0
-        ya1 = y1
-    elif y1 <= 0.0:
-        ya0 = -y1
-        ya1 = -y0
-    else:
-        ya1 = -y0
-        yb1 = y1
+    # pieces along x: [xa0, xa1] and, when x = 0 cuts the rectangle, [0, xb1]; the same along y
+    fx = fold_interval(x0, x1)
+    xa0 = fx[0]
+    xa1 = fx[1]
+    xb1 = fx[2]
+    fy = fold_interval(y0, y1)
+    ya0 = fy[0]
+    ya1 = fy[1]
+    yb1 = fy[2]
     z = quad_half_angle(xa0, xa1, ya0, ya1, h)
     if xb1 >= 0.0:
         z = cmul(z, quad_half_angle(0.0, xb1, ya0, ya1, h))
