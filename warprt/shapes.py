@@ -92,7 +92,7 @@ BY_TAG = {k.tag: k for k in KINDS}
 
 # --- sampling an emitting shape -----------------------------------------------------------------
 
-SPHRECT_NEAR = 0.25  # (|e1| + |e2|) / distance from which a rectangle light is sampled by solid angle
+SPHRECT_NEAR = 1.0  # (|e1| + |e2|) / distance from which a rectangle light is sampled by solid angle
 
 
 @wp.struct
@@ -159,7 +159,7 @@ def sample_rect_emitter(rec: RectRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
     mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
     if not (wp.dot(rec.n, p - rec.c) > 0.0):
         return EmitterSample()  # p behind (or in the plane of) a one-sided emitter: no light
-    # near a rectangle (its size at least SPHRECT_NEAR of its distance) the area-sampling weight
+    # near a rectangle (its size at least SPHRECT_NEAR times its distance) the area-sampling weight
     # cosθ'/r² varies across it and solid-angle sampling pays for its cost (~250 ns against
     # ~10 ns); farther, both weights are nearly constant and area sampling is as good
     centre = rec.c + 0.5 * (rec.e1 + rec.e2)
