@@ -31,6 +31,7 @@ from .build import DeviceScene
 from .camera import camera_frame_w, camera_ray, project
 from .errors import RenderError
 from .records import KIND_MESH, KIND_NONE, KIND_SPHERE, CameraData, Features, SceneData
+from .scene.description import is_area_light
 from .trace import make_trace, to_object, to_world
 
 
@@ -117,7 +118,7 @@ def _object_ids(built: DeviceScene, kind: np.ndarray, row: np.ndarray) -> np.nda
     """Object id per pixel from (kind, row): the shape's index in ``scene.shapes``, or
     len(shapes) + light index for an area light's own surface, -1 for a miss."""
     owner = {key: obj for obj, key in enumerate(built.shape_ids)}
-    lights = [i for i, light in enumerate(built.scene.lights) if hasattr(light, "shape")]
+    lights = [i for i, light in enumerate(built.scene.lights) if is_area_light(light)]
     for rec, light_index in zip(built.area_lights, lights):
         owner[(rec["kind"], rec["shape"])] = len(built.scene.shapes) + light_index
     keys = kind.astype(np.int64) * (1 << 32) + row.astype(np.int64)

@@ -25,7 +25,7 @@ from .records import (
     features_of, table,
 )
 from .sampling import SAMPLER_IDS
-from .scene.description import Material, Mesh, PointLight, Scene
+from .scene.description import Material, Mesh, PointLight, Scene, is_area_light
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, KINDS
 
@@ -98,9 +98,7 @@ class DeviceScene:
 
         # area lights: emission on a shape, appended to that shape kind's table
         alights = []
-        for light in scene.lights:
-            if isinstance(light, PointLight):
-                continue
+        for light in filter(is_area_light, scene.lights):
             surface = light.shape()
             kind = BY_CLASS[type(surface)]
             mats.append((Material(kd=0.0, ka=0.0), tuple(light.radiance)))

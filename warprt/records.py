@@ -12,7 +12,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
-from .scene.description import Material, Mesh, Scene, Sphere
+from .scene.description import Material, Mesh, Scene, Sphere, is_area_light
 
 # shape kinds, as reported by ray queries and id AOVs, and as area lights name their surface
 KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
@@ -63,7 +63,7 @@ def features_of(scene: Scene) -> Features:
     used = [scene.materials[name] for name in {s.material for s in scene.shapes}]
     return Features(
         meshes=any(isinstance(s, Mesh) for s in scene.shapes),
-        area_lights=any(hasattr(light, "shape") for light in scene.lights),
+        area_lights=any(is_area_light(light) for light in scene.lights),
         secondary=any(_reflects(m) or _refracts(m) for m in used),
         refraction=any(_refracts(m) for m in used),
         glossy=any(_glossy(m) for m in used),

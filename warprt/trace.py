@@ -81,6 +81,18 @@ def normal_to_world(pose: Pose, n: wp.vec3) -> wp.vec3:
     return wp.quat_rotate(pose.rot, wp.cw_div(n, pose.scl))
 
 
+@wp.func(inline=True)
+def on_plane(h_in: Hit, p: wp.vec3, p0: wp.vec3, n: wp.vec3, mat: int) -> Hit:
+    """h_in with its point refined onto the plane through p0 of unit normal n (a plane, rectangle
+    or disk), that normal as both normals, and the material; ``mag`` is the caller's."""
+    h = h_in
+    h.p = refine_on_plane(p, p0, n)
+    h.ng = n
+    h.ns = n
+    h.mat = mat
+    return h
+
+
 @wp.func
 def leaves_face(mid: wp.uint64, face: int, o: wp.vec3, d: wp.vec3) -> bool:
     """True when the ray (o, d) (object space) cannot meet the plane of triangle ``face`` at t > 0:
@@ -322,28 +334,16 @@ def make_trace(F: Features) -> SimpleNamespace:
             h.mag = abs3(c) + abs3(h.ng) * r  # the centre, and the radius along each axis
             h.mat = scene.spheres[index].mat
         elif kind == KIND_PLANE:
-            n = scene.planes[index].n
-            h.p = refine_on_plane(p, scene.planes[index].p, n)
-            h.ng = n
-            h.ns = n
+            h = on_plane(h, p, scene.planes[index].p, scene.planes[index].n, scene.planes[index].mat)
             h.mag = wp.max(abs3(h.p), abs3(scene.planes[index].p))
-            h.mat = scene.planes[index].mat
         elif kind == KIND_RECT:
-            n = scene.rects[index].n
-            c = scene.rects[index].c
-            h.p = refine_on_plane(p, c, n)
-            h.ng = n
-            h.ns = n
-            h.mag = abs3(c) + abs3(scene.rects[index].e1) + abs3(scene.rects[index].e2)
-            h.mat = scene.rects[index].mat
+            rect = scene.rects[index]
+            h = on_plane(h, p, rect.c, rect.n, rect.mat)
+            h.mag = abs3(rect.c) + abs3(rect.e1) + abs3(rect.e2)
         elif kind == KIND_DISK:
-            n = scene.disks[index].n
-            c = scene.disks[index].c
-            h.p = refine_on_plane(p, c, n)
-            h.ng = n
-            h.ns = n
-            h.mag = abs3(c) + disk_extent(n, scene.disks[index].r)
-            h.mat = scene.disks[index].mat
+            disk = scene.disks[index]
+            h = on_plane(h, p, disk.c, disk.n, disk.mat)
+            h.mag = abs3(disk.c) + disk_extent(disk.n, disk.r)
         if wp.static(F.meshes):
             if kind == KIND_MESH:
                 h = mesh_details(scene, h, o, d, face, bu, bv, time)

@@ -465,6 +465,11 @@ class RenderSettings:
         set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
 
 
+def is_area_light(light) -> bool:
+    """An area light is emission on a shape: it gives its emitting surface through ``.shape()``."""
+    return callable(getattr(light, "shape", None))
+
+
 # the one list of each: scene-file type names, the classes behind them (the loader, Scene's
 # validation and the package's exports read these)
 SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
