@@ -44,24 +44,29 @@ def footprint_points(i: int, j: int, k: int = 6) -> np.ndarray:
 # --- area lights ------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("height, half", [(2.0, 1.5), (12.0, 0.6)],
-                         ids=["near: solid-angle sampling", "far: area sampling"])
-def test_rectangle_light_irradiance_matches_polygon_formula_and_is_unbiased(height, half):
-    """Near the light (its size at least shapes.SPHRECT_NEAR times its distance) points are drawn
-    uniformly in its solid angle, farther uniformly by area: both against the closed form."""
-    from warprt.shapes import SPHRECT_NEAR
+@pytest.mark.parametrize("height, half, light_sampling", [
+    (2.0, 1.5, "uniform"), (12.0, 0.6, "uniform"), (2.0, 1.5, "cosine"), (12.0, 0.6, "cosine")],
+    ids=["uniform, near: solid angle", "uniform, far: area", "cosine, near: area", "cosine, far: area"])
+def test_rectangle_light_irradiance_matches_polygon_formula_and_is_unbiased(height, half, light_sampling):
+    """Uniform draws: near the light (its size at least shapes.SPHRECT_NEAR times its distance)
+    uniform in its solid angle, farther by area. Cosine draws (the default): by area with the
+    warp, by solid angle with it from SPHRECT_NEAR_COSINE on (tests/test_cosine_lights.py checks
+    that regime at the device level). All against the closed form."""
+    from warprt.shapes import SPHRECT_NEAR, SPHRECT_NEAR_COSINE
 
     corner, e1, e2 = np.array([0.3 - half, height, -0.6]), np.array([2 * half, 0.0, 0.0]), np.array([0.0, 0.0, 1.2])
     size = np.linalg.norm(e1) + np.linalg.norm(e2)
-    # the two regimes for every visible ground point (within 2.5 of the light's foot)
-    assert (size >= SPHRECT_NEAR * math.hypot(height, 2.5)) == (height < 5)
+    # one regime for every visible ground point (from under the light to 2.5 from its foot)
+    near_at = SPHRECT_NEAR if light_sampling == "uniform" else SPHRECT_NEAR_COSINE
+    solid = [size >= near_at * math.hypot(height, r) for r in (0.0, 2.5)]
+    assert solid[0] == solid[1] == (height < 5 and light_sampling == "uniform")
     le, kd = 3.0, 0.7
     w = h = 10
     scene = warprt.Scene(
         camera=warprt.Camera(eye=(0.3, 1.5, 2.5), look_at=(0.3, 0.0, 0.0), fov=50, width=w, height=h),
         shapes=(warprt.Plane(material="white"),), materials={"white": warprt.Material(kd=kd, ka=0.0)},
         lights=(warprt.RectLight(corner=tuple(corner), edge1=tuple(e1), edge2=tuple(e2), radiance=le),),
-        render=warprt.RenderSettings(sampler="independent"))
+        render=warprt.RenderSettings(sampler="independent", light_sampling=light_sampling))
     verts = [corner, corner + e1, corner + e1 + e2, corner + e2]
     expected = np.zeros((h, w))
     for j in range(h):

@@ -25,7 +25,7 @@ from .records import (
     features_of, table,
 )
 from .sampling import SAMPLER_IDS
-from .scene.description import Material, Mesh, PointLight, Scene, is_area_light
+from .scene.description import LIGHT_SAMPLING, Material, Mesh, PointLight, Scene, is_area_light
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, KINDS
 
@@ -189,4 +189,5 @@ def render_params(scene: Scene, spp: int, seed: int, features: Features | None =
     p.t_max = s.t_max if math.isfinite(s.t_max) else 3.0e38
     p.clamp = s.clamp
     p.moving = int(features.motion) if features is not None else 1
+    p.light_sampling = LIGHT_SAMPLING.index(s.light_sampling)
     return p

@@ -45,7 +45,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             dim = hash2(key, wp.uint32(LIGHT_DIM_BASE + j))
             for k in range(ns):
                 u = sample_2d_keyed(params.sampler, pkey, sample * ns + k, params.spp * ns, dim)
-                e = sample_emitter(scene, scene.alights[j].kind, scene.alights[j].shape, p, u)
+                e = sample_emitter(scene, scene.alights[j].kind, scene.alights[j].shape, p, n, params.light_sampling, u)
                 if e.ok == 0:
                     continue
                 if wp.dot(ng, e.l) <= 0.0:

@@ -214,6 +214,7 @@ class RenderParams:
     t_max: float
     clamp: float
     moving: int  # 1 when something in the scene moves: sample time (runtime guard for general kernels)
+    light_sampling: int  # LIGHT_SAMPLING id: 1 draws rectangle-light directions in proportion to n·ω
 
 
 def table(struct, rows: list[dict], device) -> "wp.array":

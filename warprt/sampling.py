@@ -256,6 +256,72 @@ def square_to_disk(u: wp.vec2) -> wp.vec2:
 
 
 @wp.func
+def sample_linear(u: float, a: float, b: float) -> float:
+    """x in [0, 1] with density 2((1 - x)·a + x·b)/(a + b) (a, b >= 0, a + b > 0): the root of
+    the quadratic CDF (2a·x + (b - a)·x²)/(a + b) = u in the form that does not cancel when a ≈ b."""
+    x = u * (a + b) / (a + wp.sqrt((1.0 - u) * a * a + u * b * b))
+    if not (x >= 0.0):
+        return 0.0  # u = a = 0
+    return wp.min(x, 1.0)
+
+
+@wp.func
+def sample_two_linear(u: float, a: float, b: float, c: float) -> float:
+    """x in [0, 1] with a density in proportion to the piecewise-linear function through a, b, c at
+    x = 0, ½, 1 (all >= 0, not all 0): the half by its mass, then ``sample_linear`` in it.
+    Monotone in u."""
+    m0 = a + b
+    m1 = b + c
+    t = u * (m0 + m1)
+    if t < m0:
+        return 0.5 * sample_linear(wp.min(t / m0, 1.0), a, b)
+    return 0.5 + 0.5 * sample_linear(wp.clamp((t - m0) / m1, 0.0, 1.0), b, c)
+
+
+@wp.func
+def grid_lerp(w: wp.mat33, i: int, y: float) -> float:
+    """Column i of the knot grid (w[i, j]: x = i/2, y = j/2) interpolated at y."""
+    if y < 0.5:
+        t = 2.0 * y
+        return (1.0 - t) * w[i, 0] + t * w[i, 1]
+    t = 2.0 * y - 1.0
+    return (1.0 - t) * w[i, 1] + t * w[i, 2]
+
+
+@wp.func
+def square_to_grid_bilinear(u: wp.vec2, w: wp.mat33) -> wp.vec2:
+    """A point of the unit square with density in proportion to the bilinear interpolation of the
+    3 × 3 knot values w[i, j] at (x, y) = (i/2, j/2) (all >= 0, not all 0): y from its marginal
+    (piecewise linear: the trapezoid rule along x is exact), then x given y. The map is monotone
+    in each coordinate, so stratified and low-discrepancy points stay so. Density:
+    ``grid_bilinear_pdf``."""
+    g0 = w[0, 0] + 2.0 * w[1, 0] + w[2, 0]
+    g1 = w[0, 1] + 2.0 * w[1, 1] + w[2, 1]
+    g2 = w[0, 2] + 2.0 * w[1, 2] + w[2, 2]
+    y = sample_two_linear(u[1], g0, g1, g2)
+    x = sample_two_linear(u[0], grid_lerp(w, 0, y), grid_lerp(w, 1, y), grid_lerp(w, 2, y))
+    return wp.vec2(x, y)
+
+
+@wp.func
+def grid_bilinear_pdf(q: wp.vec2, w: wp.mat33) -> float:
+    """Density of ``square_to_grid_bilinear`` at q (with respect to area on the unit square)."""
+    x = q[0]
+    a = grid_lerp(w, 0, q[1])
+    b = grid_lerp(w, 1, q[1])
+    c = grid_lerp(w, 2, q[1])
+    f = float(0.0)
+    if x < 0.5:
+        f = a + (b - a) * (2.0 * x)
+    else:
+        f = b + (c - b) * (2.0 * x - 1.0)
+    total = 0.0
+    for i in range(3):
+        total += (w[i, 0] + 2.0 * w[i, 1] + w[i, 2]) * wp.where(i == 1, 2.0, 1.0)
+    return 16.0 * f / total
+
+
+@wp.func
 def square_to_cone(u: wp.vec2, one_minus_cos_max: float) -> wp.vec3:
     """Uniform direction in the cone of half-angle θmax about +z, given 1 - cos θmax (passed as is,
     so tiny cones keep their precision); density 1/(2π(1 - cos θmax))."""

@@ -25,7 +25,10 @@ from .geometry import intersect_sphere, max_abs
 from .records import (
     KIND_DISK, KIND_PLANE, KIND_RECT, KIND_SPHERE, DiskRec, PlaneRec, RectRec, SceneData, SphereRec,
 )
-from .sampling import frame_from_z, is_rectangle_edges, square_to_cone, square_to_disk, square_to_spherical_rect
+from .sampling import (
+    frame_from_z, grid_bilinear_pdf, is_rectangle_edges, square_to_cone, square_to_disk, square_to_grid_bilinear,
+    square_to_spherical_rect,
+)
 from .scene.description import Disk, Plane, Rectangle, Sphere
 
 
@@ -93,6 +96,7 @@ BY_TAG = {k.tag: k for k in KINDS}
 # --- sampling an emitting shape -----------------------------------------------------------------
 
 SPHRECT_NEAR = 1.0  # (|e1| + |e2|) / distance from which a rectangle light is sampled by solid angle
+SPHRECT_NEAR_COSINE = 3.0  # the same with the cosine warp (which follows cosθ'/r² by area farther)
 
 
 @wp.struct
@@ -151,20 +155,69 @@ def planar_emitter(y: wp.vec3, ln: wp.vec3, area: float, mag: float, p: wp.vec3)
     return e
 
 
+COSINE_FLOOR = 0.01  # the least corner weight of the cosine warp, relative to the largest
+
+
+@wp.func
+def rect_cosine_weights(rec: RectRec, p: wp.vec3, n: wp.vec3, solid_angle: bool) -> wp.mat33:
+    """Knots for the cosine warp: w[i, j] at the rectangle's point c + (i/2)·e1 + (j/2)·e2 (the
+    corners are the corners of both sample parametrisations), weighted by what the estimate
+    integrates: max(0, n·ω) in solid angle, max(0, n·ω)/r³ by area (cosθ'/r² = h/r³, h common).
+    Raised to at least COSINE_FLOOR times the largest (the density must not vanish where n·ω > 0
+    between knots); all 0 when the light is wholly below p's horizon."""
+    w = wp.mat33()
+    top = float(0.0)
+    d0 = rec.c - p
+    for i in range(3):
+        for j in range(3):
+            d = d0 + (0.5 * float(i)) * rec.e1 + (0.5 * float(j)) * rec.e2
+            r = wp.length(d)
+            v = wp.max(wp.dot(n, d) / r, 0.0)
+            if not solid_angle:
+                v = v / (r * r * r)
+            w[i, j] = v
+            top = wp.max(top, v)
+    if not (top > 0.0) or not (top < 3.0e38):
+        return wp.mat33()
+    lo = COSINE_FLOOR * top
+    for i in range(3):
+        for j in range(3):
+            w[i, j] = wp.max(w[i, j], lo)
+    return w
+
+
 @wp.func(inline=True)
-def sample_rect_emitter(rec: RectRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u_in: wp.vec2) -> EmitterSample:
     """A rectangle near p: uniform in the solid angle it subtends (spherical rectangles; the
     irradiance estimate then varies only with cosθ at p); a far one, a sheared parallelogram, or
-    a solid angle too small to matter: uniform by area. Both estimators are unbiased."""
+    a solid angle too small to matter: uniform by area. With ``cosine`` != 0 the square is first
+    warped so that points come in proportion to a bilinear fit of n·ω (times cosθ'/r² by area)
+    over the corners, the product sampling of pbrt-v4's lights: a point in full view then
+    contributes nearly the same whatever the sample, and low-discrepancy samples keep their
+    stratification in penumbrae. Every estimator is unbiased (the density never vanishes where
+    n·ω > 0)."""
     mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
     if not (wp.dot(rec.n, p - rec.c) > 0.0):
         return EmitterSample()  # p behind (or in the plane of) a one-sided emitter: no light
     # near a rectangle (its size at least SPHRECT_NEAR times its distance) the area-sampling weight
     # cosθ'/r² varies across it and solid-angle sampling pays for its cost (~250 ns against
-    # ~10 ns); farther, both weights are nearly constant and area sampling is as good
+    # ~10 ns); farther, both weights are nearly constant and area sampling is as good. The cosine
+    # warp fits cosθ'/r² at the corners too, so area sampling serves it up to SPHRECT_NEAR_COSINE
     centre = rec.c + 0.5 * (rec.e1 + rec.e2)
-    near = wp.length(rec.e1) + wp.length(rec.e2) >= SPHRECT_NEAR * wp.length(centre - p)
-    if near and is_rectangle_edges(rec.e1, rec.e2):
+    near_at = SPHRECT_NEAR
+    if cosine != 0:
+        near_at = SPHRECT_NEAR_COSINE
+    near = wp.length(rec.e1) + wp.length(rec.e2) >= near_at * wp.length(centre - p)
+    solid = near and is_rectangle_edges(rec.e1, rec.e2)
+    u = u_in
+    warp_pdf = float(1.0)
+    if cosine != 0:
+        w = rect_cosine_weights(rec, p, n, solid)
+        if not (w[0, 0] > 0.0):
+            return EmitterSample()  # every point of the light below the horizon: n·ω <= 0 throughout
+        u = square_to_grid_bilinear(u_in, w)
+        warp_pdf = grid_bilinear_pdf(u, w)
+    if solid:
         q = square_to_spherical_rect(p, rec.c, rec.e1, rec.e2, u)
         if q[3] > 0.0:
             e = EmitterSample()
@@ -180,11 +233,13 @@ def sample_rect_emitter(rec: RectRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
             e.y = y
             e.l = l
             e.dist = dist
-            e.inv_pdf = q[3]  # 1 / (1/Ω)
+            e.inv_pdf = q[3] / warp_pdf  # 1 / (1/Ω · the warp's density)
             e.mag = mag
             return e
     y = rec.c + u[0] * rec.e1 + u[1] * rec.e2
-    return planar_emitter(y, rec.n, wp.length(wp.cross(rec.e1, rec.e2)), mag, p)
+    e = planar_emitter(y, rec.n, wp.length(wp.cross(rec.e1, rec.e2)), mag, p)
+    e.inv_pdf = e.inv_pdf / warp_pdf
+    return e
 
 
 @wp.func(inline=True)
@@ -195,10 +250,12 @@ def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
 
 
 @wp.func(inline=True)
-def sample_emitter(scene: SceneData, kind: int, row: int, p: wp.vec3, u: wp.vec2) -> EmitterSample:
-    """A point of the emitting shape (kind, row) for shading point p, from the 2D sample u."""
+def sample_emitter(scene: SceneData, kind: int, row: int, p: wp.vec3, n: wp.vec3, cosine: int,
+                   u: wp.vec2) -> EmitterSample:
+    """A point of the emitting shape (kind, row) for shading point p (shading normal n), from the
+    2D sample u; ``cosine``: RenderParams.light_sampling (rectangles drawn in proportion to n·ω)."""
     if kind == KIND_SPHERE:
         return sample_sphere_emitter(scene.spheres[row], p, u)
     if kind == KIND_RECT:
-        return sample_rect_emitter(scene.rects[row], p, u)
+        return sample_rect_emitter(scene.rects[row], p, n, cosine, u)
     return sample_disk_emitter(scene.disks[row], p, u)

@@ -29,6 +29,7 @@ from .values import (
 )
 
 SAMPLERS = ("regular", "independent", "stratified", "sobol")  # RenderSettings.sampler (ids: their order)
+LIGHT_SAMPLING = ("uniform", "cosine")  # RenderSettings.light_sampling (ids: their order)
 FALLOFFS = ("none", "inverse_square")
 FRESNEL_MODES = ("none", "schlick", "exact")
 MAX_DEPTH_LIMIT = 64
@@ -448,6 +449,9 @@ class RenderSettings:
     t_min: float = 0.0  # camera rays: nearest accepted distance
     t_max: float = math.inf  # camera rays: farthest accepted distance
     clamp: float = 1e20  # each sample's radiance is clamped to this (overflow guard)
+    # rectangle lights on Lambertian surfaces: "cosine" draws directions in proportion to n·ω, so a
+    # fully lit (or fully shadowed) point has no noise; "uniform" by solid angle or area
+    light_sampling: str = "cosine"
 
     def __post_init__(self):
         set_field(self, "spp", as_int(self.spp, "spp", minimum=1, maximum=1 << 20))
@@ -463,6 +467,7 @@ class RenderSettings:
         if self.t_max <= self.t_min:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
         set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
+        set_field(self, "light_sampling", as_choice(self.light_sampling, "light_sampling", LIGHT_SAMPLING))
 
 
 def is_area_light(light) -> bool:
