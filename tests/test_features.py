@@ -3,6 +3,8 @@ image as the all-features kernel, shared mesh assets, and the sphere BVH."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -98,6 +100,52 @@ def test_analytic_bvh_finds_the_same_hits_as_the_loop(device, monkeypatch):
     b = loop.render(spp=2, progress=False).image
     assert a.tobytes() == b.tobytes()
     # and through the query API
+    o, d = warprt.camera_rays(scene)
+    ha, hb = warprt.trace_rays(with_bvh, o, d), warprt.trace_rays(loop, o, d)
+    np.testing.assert_array_equal(ha["shape"], hb["shape"])
+    np.testing.assert_array_equal(ha["t"], hb["t"])
+
+
+def test_long_rectangles_boxed_in_pieces_find_the_same_hits_and_shadows(device, monkeypatch):
+    """Long thin opaque bars tilted off the axes go into the BVH as pieces
+    (``shapes.rect_pieces``); a transparent bar stays whole, so its shadow counts one crossing.
+    The image and the hits equal the loop's, and the pieces cover every bar."""
+    from warprt.shapes import RECT_MAX_PIECES, rect_pieces
+
+    rng = np.random.default_rng(3)
+    shapes = []
+    for k in range(20):
+        a = math.radians(8.0 + 3.0 * k)
+        e1 = np.array([math.cos(a), 0.0, -math.sin(a)]) * 6.0
+        e2 = np.array([math.sin(a), 0.0, math.cos(a)]) * 0.06
+        shapes.append(warprt.Rectangle(corner=(-3.0 + 0.3 * k, 0.01 * (k + 1), 1.0 - 0.2 * k), edge1=tuple(e1),
+                                       edge2=tuple(e2), material="glass" if k == 7 else "ball"))
+    shapes.append(warprt.Rectangle(corner=(-2.0, 0.6, -1.0), edge1=(5.0, 0.3, 0.0), edge2=(0.0, 0.0, 0.08),
+                                   material="glass"))
+    shapes.append(warprt.Plane(point=(0, 0, 0), material="floor"))
+    scene = _scene(shapes=tuple(shapes), camera=warprt.Camera(eye=(0, 2.5, 4), look_at=(0, 0, -1), width=40,
+                                                              height=30),
+                   materials={"ball": warprt.Material(kd=0.7), "floor": warprt.Material(kd=0.5),
+                              "glass": warprt.Material(kd=0.1, transparency=0.6)})
+    for s in shapes[:-1]:
+        row = {"c": s.corner, "e1": s.edge1, "e2": s.edge2}
+        pieces = rect_pieces(row)
+        assert 1 <= len(pieces) <= RECT_MAX_PIECES
+        uv = rng.random((500, 2))
+        pts = np.asarray(s.corner) + uv[:, :1] * np.asarray(s.edge1) + uv[:, 1:] * np.asarray(s.edge2)
+        inside = np.zeros(len(pts), bool)
+        for lo, hi in pieces:
+            inside |= ((pts >= lo - 1e-12) & (pts <= hi + 1e-12)).all(axis=1)
+        assert inside.all()
+    assert len(rect_pieces({"c": shapes[0].corner, "e1": shapes[0].edge1, "e2": shapes[0].edge2})) == RECT_MAX_PIECES
+    with_bvh = warprt.Renderer(scene, device=device)
+    n_bvh_prims = with_bvh.built.data.bvh_prims.shape[0]
+    assert n_bvh_prims == 19 * RECT_MAX_PIECES + 2  # two transparent bars whole
+    monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
+    loop = warprt.Renderer(scene, device=device)
+    a = with_bvh.render(spp=2, progress=False).image
+    b = loop.render(spp=2, progress=False).image
+    assert a.tobytes() == b.tobytes()
     o, d = warprt.camera_rays(scene)
     ha, hb = warprt.trace_rays(with_bvh, o, d), warprt.trace_rays(loop, o, d)
     np.testing.assert_array_equal(ha["shape"], hb["shape"])

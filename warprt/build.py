@@ -21,13 +21,13 @@ from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
 from .records import (
-    FRESNEL_IDS, KIND_MESH, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
+    FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
     features_of, table,
 )
 from .sampling import SAMPLER_IDS
 from .scene.description import LIGHT_SAMPLING, Material, Mesh, PointLight, Scene, is_area_light
 from .scene.transform import Transform, same_hemisphere
-from .shapes import BY_CLASS, KINDS
+from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
 
 ANALYTIC_BVH_MIN = 16  # from this many spheres, rectangles and disks on, rays find them through one BVH
 
@@ -127,7 +127,7 @@ class DeviceScene:
         d.alights = table(AreaLightRec, alights, dev)
         d.ambient = wp.vec3(*scene.ambient)
         d.background = wp.vec3(*scene.background)
-        self._analytic_bvh(d, rows)
+        self._analytic_bvh(d, rows, [m for m, _ in mats])
         self.data = d
         self.camera = camera_data(scene)
 
@@ -154,7 +154,7 @@ class DeviceScene:
             all_n[off:off + len(vn)] = vn
             self.data.normals.assign(all_n)
 
-    def _analytic_bvh(self, d: SceneData, rows: dict[str, list[dict]]) -> None:
+    def _analytic_bvh(self, d: SceneData, rows: dict[str, list[dict]], materials: list[Material]) -> None:
         """From ANALYTIC_BVH_MIN bounded analytic shapes on, one wp.Bvh over their bounds (spheres
         swept over their motion), each primitive tagged (kind, row)."""
         dev = self.device
@@ -165,6 +165,12 @@ class DeviceScene:
         d.bvh_prims = wp.zeros(1, dtype=wp.vec2i, device=dev)
         if len(prims) < ANALYTIC_BVH_MIN:
             return
+        # opaque rectangles in pieces (shapes.rect_pieces): a transparent one stays whole, so that a
+        # shadow ray counts its crossing once
+        rect_kind = BY_TAG[KIND_RECT]
+        prims = [(kind, j, box) for kind, j, whole in prims
+                 for box in (rect_pieces(rows[kind.table][j]) if kind is rect_kind and not any(
+                     materials[rows[kind.table][j]["mat"]].transparency) else [whole])]
         lo = np.array([b[0] for _, _, b in prims], dtype=np.float64)
         hi = np.array([b[1] for _, _, b in prims], dtype=np.float64)
         # float32 rounding of the bounds must not cut off a hit: pad by a relative margin

@@ -15,6 +15,7 @@ over each kind's table in ``trace``. Meshes are instances of ``wp.Mesh`` assets,
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -61,10 +62,33 @@ def _sphere_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.minimum(c0, c1) - r, np.maximum(c0, c1) + r  # swept over the motion
 
 
+RECT_MAX_PIECES = 8  # a long thin rectangle is boxed in the BVH as up to this many pieces
+
+
 def _rect_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
     c, e1, e2 = (np.asarray(row[k], np.float64) for k in ("c", "e1", "e2"))
     corners = np.array([c, c + e1, c + e2, c + e1 + e2])
     return corners.min(axis=0), corners.max(axis=0)
+
+
+def rect_pieces(row: dict) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Boxes covering a rectangle in pieces along its longer edge, about as long as it is wide
+    (at most RECT_MAX_PIECES): one box around a long bar tilted off the axes is mostly empty, and
+    every ray through that emptiness would be tested against it. A ray may meet the rectangle
+    through several of its pieces; the nearest-hit search does not mind (a hit replaces another
+    only when strictly nearer), a transmittance walk would count the crossing once per piece, so
+    the builder boxes transparent rectangles whole."""
+    c, e1, e2 = (np.asarray(row[k], np.float64) for k in ("c", "e1", "e2"))
+    l1, l2 = np.linalg.norm(e1), np.linalg.norm(e2)
+    if l1 < l2:
+        e1, e2, l1, l2 = e2, e1, l2, l1
+    k = int(min(RECT_MAX_PIECES, max(1, math.ceil(l1 / max(l2, 1e-30)))))
+    edges = np.linspace(0.0, 1.0, k + 1)
+    out = []
+    for a0, a1 in zip(edges[:-1], edges[1:]):
+        corners = np.array([c + a0 * e1, c + a1 * e1, c + a0 * e1 + e2, c + a1 * e1 + e2])
+        out.append((corners.min(axis=0), corners.max(axis=0)))
+    return out
 
 
 def _disk_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
