@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
 
-.PHONY: render test bench bench-peers install clean
+.PHONY: render test mutate bench bench-peers install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +22,11 @@ render: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+# mutation testing (not part of `make test`): one-line mistakes in the physics, each must be
+# caught by the tests listed for it in tests/mutations.toml
+mutate: $(STAMP)
+	$(PY) -m tests.mutate $(MUTATE_ARGS)
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run
