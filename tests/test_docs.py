@@ -4,8 +4,8 @@ Every fenced ```python block of README.md and docs/**/*.md is run, in the order 
 fresh Python process per markdown file: a reader pastes the blocks of a page one after another
 into one session, so a later block may use names an earlier one defined, but nothing else is
 given to it. The process starts in a temporary folder holding what a fresh clone has and the
-blocks read (``scenes/``, ``examples/``, ``tests/data/``) and nothing a previous run made (no
-``out/``), with this repository first on ``sys.path``. A block that writes into a folder must
+blocks may read (``scenes/``, ``examples/``) and nothing a previous run made (no ``out/``), with
+this repository first on ``sys.path``. A block that writes into a folder must
 create it, as a reader's first run would have to.
 
 A block that is a fragment on purpose (a pattern with placeholders, or one that needs a Ray
@@ -44,12 +44,12 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 
 # What of a fresh clone the blocks may read, copied into the working folder of each run.
-CLONE_PARTS = ("scenes", "examples", "tests/data")
+CLONE_PARTS = ("scenes", "examples")
 
-# One page's blocks render a handful of small images (at most a few hundred thousand samples in
-# all) after loading their kernels; warm, the slowest page takes about 10 s on 2 busy cores. On a
-# cold kernel cache each new feature set costs a compile of 3-7 s (README.md: kernel cache), and
-# a page uses up to four, so 300 s leaves room for a loaded machine without hiding a hang.
+# One page's blocks render a handful of small images (at most about a million samples in all)
+# after loading their kernels; warm, the slowest page (README.md) takes about 4 s on 2 cores. On
+# a cold kernel cache each new feature set costs a compile of 3-7 s (README.md: kernel cache),
+# and a page uses up to four, so 300 s leaves room for a loaded machine without hiding a hang.
 PAGE_TIMEOUT_S = 300
 
 FRAGMENT = re.compile(r"<!--\s*fragment:\s*\S.*-->")
@@ -149,11 +149,13 @@ def png_pixels(path: Path) -> np.ndarray:
 
 
 def test_every_python_fence_is_found():
-    """The parser sees every ```python fence (a fence it missed would silently not run), and the
-    pages that teach the API have blocks that run."""
+    """The parser sees every python fence, indented ones included (it reads fences at the start of
+    a line only, so an indented block would silently not run), and the pages that teach the API
+    have blocks that run."""
     for page in DOCS:
         text = page.read_text(encoding="utf-8")
-        assert len(python_blocks(page)) == len(re.findall(r"^```python\s*$", text, flags=re.M)), page
+        fences = re.findall(r"^[ \t>]*`{3,}[ \t]*(?:python|py|python3)[ \t]*$", text, flags=re.M)
+        assert len(python_blocks(page)) == len(fences), f"{page}: a python block the test cannot read"
     names = {p.relative_to(ROOT).as_posix() for p in PAGES_WITH_PYTHON}
     assert {"README.md", "docs/pipelines.md", "docs/effects/soft-shadows.md"} <= names
 
