@@ -8,7 +8,12 @@ crops, zooms (nearest neighbour, so pixels stay visible), labels and puts the pa
 
     python examples/make_doc_images.py                          # every image into docs/images/
     python examples/make_doc_images.py out/img --only glossy soft_shadows_samples
+    python examples/make_doc_images.py out/quick --scale 0.2 --max-spp 2   # a quick look, seconds
     python examples/make_doc_images.py --list
+
+``--scale`` and ``--max-spp`` are for trying the script (and for the test suite): every image,
+crop and panel shrinks by the scale and no render takes more samples per pixel than the limit.
+The images in docs/images/ are made with neither.
 
 The first run compiles one render kernel per feature set the scenes use (a few seconds each on a
 cold cache, see WARP_CACHE_PATH). On the 2-core development machine the whole set takes about
@@ -37,18 +42,33 @@ SEED = 0
 LABEL_H = 22  # height of the caption bar under each panel
 GAP = 4  # pixels between panels
 
+# Set by --scale and --max-spp (1 and no limit for the documentation's images).
+SCALE = 1.0
+MAX_SPP: int | None = None
+
 
 # --- helpers -----------------------------------------------------------------------------------
 
 
+def scaled(pixels: int) -> int:
+    """A size or coordinate in pixels at the --scale in force (at least 1)."""
+    return max(1, round(pixels * SCALE))
+
+
 def load(name: str, width: int | None = None, height: int | None = None) -> warprt.Scene:
+    """A scene file at the given size (default: the file's), times --scale."""
     scene = warprt.load_scene(SCENES / f"{name}.toml")
-    changes = {k: v for k, v in (("width", width), ("height", height)) if v is not None}
-    return scene.with_camera(**changes) if changes else scene
+    width = scene.camera.width if width is None else width
+    height = scene.camera.height if height is None else height
+    return scene.with_camera(width=scaled(width), height=scaled(height))
 
 
 def render(scene: warprt.Scene, spp: int | None = None) -> np.ndarray:
-    """Render on the CPU with the scene's own (specialised) kernel; returns linear RGB."""
+    """Render on the CPU with the scene's own (specialised) kernel, at ``spp`` (default: the
+    scene's) capped by --max-spp; returns linear RGB."""
+    spp = scene.render.spp if spp is None else spp
+    if MAX_SPP is not None:
+        spp = min(spp, MAX_SPP)
     result = warprt.Renderer(scene, device="cpu").render(spp=spp, seed=SEED, progress=False)
     return result.image
 
@@ -75,7 +95,7 @@ class Panels:
         with Image.open(path) as im:
             im = im.convert("RGB")
             if crop is not None:
-                im = im.crop(crop)  # (left, top, right, bottom) in pixels
+                im = im.crop(tuple(scaled(c) for c in crop))  # (left, top, right, bottom) in pixels
             if zoom != 1:
                 im = im.resize((im.width * zoom, im.height * zoom), Image.NEAREST)
             return im.copy(), label
@@ -209,7 +229,8 @@ def radiometry(out: Path, panels: Panels) -> None:
     light of I = Le r^2 = 4), and one of radius 0.5 with the same Le r^2."""
     pos = (0.0, 2.0, 1.0)
     base = warprt.Scene(
-        camera=warprt.Camera(eye=(0.0, 2.2, 5.0), look_at=(0.0, 0.4, 0.0), fov=40, width=200, height=150),
+        camera=warprt.Camera(eye=(0.0, 2.2, 5.0), look_at=(0.0, 0.4, 0.0), fov=40, width=scaled(200),
+                             height=scaled(150)),
         shapes=(warprt.Plane(material="floor"), warprt.Sphere(center=(0.0, 0.5, 0.0), radius=0.5, material="ball")),
         materials={"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.3, 0.2), ks=0.3, p=40)},
         ambient=0.03, render=warprt.RenderSettings(sampler="sobol"))
@@ -239,7 +260,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="folder for the PNGs (default docs/images/)")
     parser.add_argument("--only", nargs="+", metavar="NAME", choices=sorted(IMAGES), help="make only these images")
     parser.add_argument("--list", action="store_true", help="list the images and exit")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="scale every image size and crop by this factor (default 1: the docs' images)")
+    parser.add_argument("--max-spp", type=int, metavar="N", help="render at most N samples per pixel")
     args = parser.parse_args(argv)
+    if not 0 < args.scale <= 1:
+        parser.error(f"--scale must be in (0, 1], got {args.scale}")
+    if args.max_spp is not None and args.max_spp < 1:
+        parser.error(f"--max-spp must be at least 1, got {args.max_spp}")
+    global SCALE, MAX_SPP
+    SCALE, MAX_SPP = args.scale, args.max_spp
     if args.list:
         for name, f in IMAGES.items():
             print(f"{name}.png: {' '.join((f.__doc__ or '').split())}")

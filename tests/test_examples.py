@@ -1,5 +1,6 @@
 """The example scripts run as a user would run them (a fresh Python process), at a small size, and
-the README's quick start names the two set-up commands."""
+the README's quick start names the two set-up commands. (The code blocks of README.md and docs/
+are run by test_docs.py.)"""
 
 from __future__ import annotations
 
@@ -71,3 +72,41 @@ def test_examples_document_their_small_size_flags(name):
     assert proc.returncode == 0
     for flag in ("--width", "--height", "--spp"):
         assert flag in proc.stdout
+
+
+def test_make_doc_images_writes_every_image_at_a_fifth_of_the_size(tmp_path):
+    """examples/make_doc_images.py with --scale 0.2 and one sample per pixel: every image it
+    lists is written (into a folder it creates), at a fifth of its documented size, and shows
+    something. At full size the script takes about 45 s; this small, a few seconds once the
+    kernels are cached."""
+    out = tmp_path / "images"
+    listed = subprocess.run([sys.executable, str(EXAMPLES / "make_doc_images.py"), "--list"], cwd=ROOT,
+                            capture_output=True, text=True, timeout=120)
+    assert listed.returncode == 0, listed.stderr
+    names = [line.split(":")[0] for line in listed.stdout.splitlines() if line.strip()]
+    assert len(names) >= 10 and all(n.endswith(".png") for n in names)
+    proc = subprocess.run([sys.executable, str(EXAMPLES / "make_doc_images.py"), str(out), "--scale", "0.2",
+                           "--max-spp", "1"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, f"make_doc_images.py failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
+    assert sorted(p.name for p in out.iterdir()) == sorted(names)
+    # single renders at a fifth of their size (showcase.toml is reduced to 320x180 first)
+    assert png_size(out / "showcase.png") == (64, 36)
+    assert png_size(out / "mirror.png") == (48, 36)
+    for name in names:
+        with Image.open(out / name) as im:
+            mean = np.asarray(im.convert("RGB")).mean()
+        # Mean 8-bit value: these renders measure 63-188 at this size; with every render black
+        # the single images are 0 and the comparison sheets (dark background, white captions) at
+        # most 36, so 50 separates a missing or black panel from a real one.
+        assert mean > 50, f"{name}: mean 8-bit value {mean:.1f}, a render is black"
+
+
+def test_make_doc_images_documents_its_quick_options():
+    proc = subprocess.run([sys.executable, str(EXAMPLES / "make_doc_images.py"), "--help"], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0
+    for flag in ("--scale", "--max-spp", "--only", "--list"):
+        assert flag in proc.stdout
+    bad = subprocess.run([sys.executable, str(EXAMPLES / "make_doc_images.py"), "--scale", "2"], capture_output=True,
+                         text=True, timeout=120)
+    assert bad.returncode == 2 and "--scale must be in (0, 1]" in bad.stderr
