@@ -3,6 +3,7 @@
     python -m benchmarks.run            # everything (several minutes on 2 cores)
     python -m benchmarks.run --quick    # smaller sizes, for a smoke run
     python -m benchmarks.run --only error,growth
+    python -m benchmarks.run --only specialisation --merge   # re-measure one section in place
 
 Writes under docs/benchmarks/ (or --out): results.json, results.csv (one row per measurement),
 and charts (PNG, needs matplotlib: the ``charts`` extra). Timings are wall-clock medians on the
@@ -192,21 +193,31 @@ def bench_throughput(rows, quick: bool):
     return out
 
 
-def bench_specialisation(rows, quick: bool):
+def bench_specialisation(rows, quick: bool, rounds: int = 9):
+    """The all-features kernel against the plain scene's own (``basic``) kernel: ``rounds``
+    interleaved pairs (specialised, then full, after one warm-up render each), so drift in machine
+    load hits both alike. Each pair gives a ratio full / specialised; the result is their median
+    and their spread (min, max), which the docs quote together (tests/test_doc_figures.py)."""
     scene = plain_scene(160 if quick else 320)
     spec = warprt.Renderer(scene)
     full = warprt.Renderer(scene, features=Features.full())
     spec.compile()
     full.compile()
     spp = 2 if quick else 16
+    spec.render(spp=spp, progress=False)
+    full.render(spp=spp, progress=False)
     t_spec, t_full = [], []
-    for _ in range(5):  # interleaved, so drift in machine load hits both alike
+    for _ in range(rounds):
         t_spec.append(spec.render(spp=spp, progress=False).wall_time)
         t_full.append(full.render(spp=spp, progress=False).wall_time)
-    ratio = statistics.median(t_full) / statistics.median(t_spec)
+    ratios = [f / s for f, s in zip(t_full, t_spec)]
+    ratio = statistics.median(ratios)
     rows.append({"benchmark": "specialisation", "scene": "plain", "seconds_specialised": statistics.median(t_spec),
                  "seconds_full": statistics.median(t_full), "value": ratio})
-    return {"specialised_s": statistics.median(t_spec), "full_s": statistics.median(t_full), "full_over_specialised": ratio}
+    return {"specialised_s": statistics.median(t_spec), "full_s": statistics.median(t_full),
+            "full_over_specialised": ratio, "full_over_specialised_min": min(ratios),
+            "full_over_specialised_max": max(ratios), "rounds": rounds, "spp": spp,
+            "ratios": ratios, "specialised_times_s": t_spec, "full_times_s": t_full}
 
 
 def _icosphere(subdivisions: int):
@@ -387,11 +398,20 @@ def write_charts(charts, out: Path) -> list[str]:
     return written
 
 
+# the results.csv "benchmark" values each step writes (for --merge)
+STEP_ROWS = {"compile": ("compile_cold", "compile_cached"), "throughput": ("throughput",),
+             "specialisation": ("specialisation",), "growth": ("triangles", "spheres"),
+             "error": ("error_vs_time", "equal_error_speedup")}
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=str(ROOT / "docs" / "benchmarks"))
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--only", default="compile,throughput,specialisation,growth,error")
+    parser.add_argument("--merge", action="store_true",
+                        help="update only the measured sections of an existing results.json / results.csv "
+                             "(with --only), keeping the others")
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -416,6 +436,21 @@ def main(argv=None) -> int:
             print(f"  {json.dumps(results[name], default=str)[:600]}\n  ({time.perf_counter() - start:.1f} s)", flush=True)
     results["test_suite_kernel_variants"] = test_suite_variants()
     results["charts"] = write_charts(charts, out)
+    if args.merge and (out / "results.json").exists():
+        old = json.loads((out / "results.json").read_text())
+        if old.get("quick") != args.quick:
+            raise SystemExit("--merge: the existing results.json has quick = "
+                             f"{old.get('quick')}, this run {args.quick}; run everything instead")
+        results["charts"] = sorted(set(old.get("charts") or []) | set(results["charts"]))
+        if results["test_suite_kernel_variants"] is None:
+            del results["test_suite_kernel_variants"]
+        results = {**old, **results}
+        measured = {b for name in only for b in STEP_ROWS.get(name, ())}
+        if (out / "results.csv").exists():
+            with open(out / "results.csv", newline="") as f:
+                kept = [{k: v for k, v in r.items() if v != ""} for r in csv.DictReader(f)
+                        if r["benchmark"] not in measured]
+            rows = kept + rows
     (out / "results.json").write_text(json.dumps(results, indent=2, default=str))
     keys = sorted({k for r in rows for k in r})
     with open(out / "results.csv", "w", newline="") as f:

@@ -1,0 +1,110 @@
+"""Figures quoted in the docs come from docs/benchmarks/results.json (written by
+``python -m benchmarks.run``): each entry below names a doc, a pattern that must occur in it
+exactly once (so a reworded or deleted quote fails here rather than going unchecked), and the JSON
+value each captured number must equal, to the precision it is quoted with (half a unit of its
+last digit). A range "a–b" is checked against the min and max of its JSON values.
+
+The kernel specialisation ratio is quoted in three docs; once results.json records its spread
+over repeats (``full_over_specialised_min`` / ``_max``), each of them must also quote that spread
+as "(a–b× over N interleaved pairs)", e.g. right after the ratio.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import re
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RESULTS = json.loads((ROOT / "docs" / "benchmarks" / "results.json").read_text())
+N = r"(\d+(?:\.\d+)?)"  # a quoted number
+SPEC = "specialisation/full_over_specialised"
+
+# (doc, pattern with one group per number, one JSON path per group; a tuple of paths: a range)
+FIGURES = [
+    ("README.md", rf"on a plain scene the full kernel\stakes {N}× the time of `basic`", [SPEC]),
+    ("docs/architecture.md", rf"the full kernel takes\s{N}× the time of `basic` on a plain scene", [SPEC]),
+    ("docs/benchmarks.md", rf"takes {N} s with\sits own `basic` kernel and {N} s with `Features.full\(\)`: "
+                           rf"the all-features kernel takes\s\*\*{N}×\*\*",
+     ["specialisation/specialised_s", "specialisation/full_s", SPEC]),
+    # throughput and thread scaling
+    ("docs/benchmarks.md", rf"\| 1 \| {N} \| {N} \| {N} \|",
+     ["throughput/1/seconds", "throughput/1/mrays_per_s", "throughput/1/mpixel_samples_per_s"]),
+    ("docs/benchmarks.md", rf"\| 2 \| {N} \| {N} \| {N} \|",
+     ["throughput/2/seconds", "throughput/2/mrays_per_s", "throughput/2/mpixel_samples_per_s"]),
+    ("docs/benchmarks.md", rf"\*\*{N}×\*\* from 1 to 2 threads", ["throughput/speedup"]),
+    ("docs/benchmarks.md", rf"runs at \*\*{N} Mrays/s per core\*\*",
+     ["throughput/plain_primary_shadow_mrays_per_s_per_core"]),
+    # compile cost: cold compile and time to first image (the whole fresh process)
+    ("docs/benchmarks.md", rf"\| `basic` \| {N} s \| {N} s \|", ["compile/basic/compile_s", "compile/basic/process_s"]),
+    ("docs/benchmarks.md", rf"\(`secondary`, `refraction`, `glossy`, `lens`, `motion`\) \| {N}–{N} s \| {N}–{N} s \|",
+     [tuple(f"compile/{v}/compile_s" for v in ("secondary", "refraction", "glossy", "lens", "motion")),
+      tuple(f"compile/{v}/process_s" for v in ("secondary", "refraction", "glossy", "lens", "motion"))]),
+    ("docs/benchmarks.md", rf"\(`area_lights`, `meshes`\) \| {N}–{N} s \| {N}–{N} s \|",
+     [tuple(f"compile/{v}/compile_s" for v in ("area_lights", "meshes")),
+      tuple(f"compile/{v}/process_s" for v in ("area_lights", "meshes"))]),
+    ("docs/benchmarks.md", rf"\| `Features.full\(\)` \(= the showcase scene\) \| {N} s \| {N} s \|",
+     ["compile/full/compile_s", "compile/full/process_s"]),
+    ("docs/benchmarks.md", rf"\| `Features.full\(\)`, already cached \| {N} s \| {N} s \|",
+     ["compile/cached/compile_s", "compile/cached/process_s"]),
+    ("README.md", rf"and {N} s for\s`Features.full\(\)` in a fresh process", ["compile/full/compile_s"]),
+    # equal-error speed-ups over independent sampling
+    *[("docs/benchmarks.md", rf"\| {label} \| {N}× \| {N}× \|", [f"error/{key}/stratified", f"error/{key}/sobol"])
+      for label, key in (("soft shadows", "soft_shadows"), ("depth of field", "depth_of_field"),
+                         (r"antialiasing \(edges\)", "antialiasing"), ("glossy reflection", "glossy"),
+                         ("motion blur", "motion_blur"))],
+]
+
+
+def json_value(path: str) -> float:
+    """The number at a "/"-separated path; a key may itself hold "/" ("error" is keyed
+    "soft_shadows/stratified"), so the longest key present is taken at each level."""
+    node, parts = RESULTS, path.split("/")
+    while parts:
+        k = next((k for k in range(len(parts), 0, -1) if "/".join(parts[:k]) in node), None)
+        if k is None:
+            raise KeyError(f"{path}: no {parts[0]!r} in results.json")
+        node, parts = node["/".join(parts[:k])], parts[k:]
+    return float(node)
+
+
+def decimals(text: str) -> int:
+    return len(text.split(".")[1]) if "." in text else 0
+
+
+def check(quoted: str, expected: float, what: str):
+    half_unit = 0.5 * 10.0 ** -decimals(quoted)
+    assert abs(float(quoted) - expected) <= half_unit * (1 + 1e-9), (what, quoted, expected)
+
+
+@pytest.mark.parametrize("doc, pattern, paths", FIGURES, ids=[f"{d}: {p[:40]}" for d, p, _ in FIGURES])
+def test_quoted_figure_matches_results_json(doc, pattern, paths):
+    text = (ROOT / doc).read_text()
+    found = re.findall(pattern, text)
+    assert len(found) == 1, f"{doc}: {pattern!r} occurs {len(found)} times (expected once)"
+    groups = list(found[0]) if isinstance(found[0], tuple) else [found[0]]
+    for path in paths:
+        if isinstance(path, tuple):
+            values = [json_value(p) for p in path]
+            check(groups.pop(0), min(values), f"{doc}: min of {path}")
+            check(groups.pop(0), max(values), f"{doc}: max of {path}")
+        else:
+            check(groups.pop(0), json_value(path), f"{doc}: {path}")
+    assert not groups
+
+
+def test_the_specialisation_ratio_is_quoted_with_its_spread_when_the_json_has_one():
+    spec = RESULTS["specialisation"]
+    quotes = {doc: (ROOT / doc).read_text() for doc in ("README.md", "docs/architecture.md", "docs/benchmarks.md")}
+    if "full_over_specialised_min" in spec:
+        spread = re.escape(f"({spec['full_over_specialised_min']:.2f}–{spec['full_over_specialised_max']:.2f}× "
+                           f"over {spec['rounds']} interleaved pairs)")
+        for doc, text in quotes.items():
+            assert re.search(spread, text), f"{doc} quotes the specialisation ratio without its spread {spread!r}"
+    else:  # an older results.json: the docs say that it holds no spread
+        assert "kept only that median, not its spread" in quotes["docs/benchmarks.md"]
+    # the figure that used to be quoted and did not survive re-measurement
+    for doc, text in quotes.items():
+        assert "6–9%" not in text, doc
