@@ -4,9 +4,11 @@
 ``tests/mutations.toml`` (a line of a source file replaced by a wrong one: a missing clamp, a
 swapped weight, a wrong constant) to a temporary copy of the repository, runs only the tests
 that cover it there, and prints CAUGHT when they fail and MISSED when they pass. The working tree
-is never modified, so an interrupted run leaves nothing behind. Exit status: 0 when every
-mutation is caught, 1 when any is missed, 2 when the list is stale (a ``find`` line no longer
-occurs exactly once in its file) or a test run could not start.
+is never modified, so an interrupted run leaves nothing behind. First every distinct test
+selection runs once unmutated and must pass (a selection that fails anyway would "catch"
+everything). Exit status: 0 when every mutation is caught, 1 when any is missed, 2 when the list
+is stale (a ``find`` line no longer occurs exactly once in its file), a selection fails
+unmutated, or a test run could not start.
 
 Mutated kernels compile into their own cache (``.cache/warp-mutate``), keyed by their source, so
 a second run of the list is faster and the main kernel cache stays clean.
@@ -88,19 +90,33 @@ def copy_tree(dst: Path) -> None:
             shutil.copy2(src, dst / name)
 
 
+def pytest(work: Path, tests: tuple[str, ...], timeout: float) -> tuple[int, str]:
+    """Run pytest on ``tests`` in the copy ``work``: (exit status, output); -1 on timeout."""
+    env = dict(os.environ, PYTHONPATH=str(work), WARP_CACHE_PATH=str(ROOT / ".cache" / "warp-mutate"),
+               PYTHONDONTWRITEBYTECODE="1")
+    try:
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests],
+                              cwd=work, env=env, capture_output=True, text=True, timeout=timeout)
+        return proc.returncode, proc.stdout + proc.stderr
+    except subprocess.TimeoutExpired:
+        return -1, "timed out"
+
+
+def baseline(muts: list[Mutation], work: Path, timeout: float) -> None:
+    """Each distinct test selection must pass on the unmutated copy (else a failure would count
+    as a catch): StaleList otherwise."""
+    for tests in dict.fromkeys(m.tests for m in muts):
+        code, output = pytest(work, tests, timeout)
+        if code != 0:
+            raise StaleList(f"the tests {' '.join(tests)} fail without any mutation (exit {code}):\n{output[-2000:]}")
+
+
 def run_one(m: Mutation, work: Path, timeout: float, verbose: bool) -> tuple[str, float]:
     original = (work / m.file).read_text(encoding="utf-8")
     (work / m.file).write_text(check_applies(m, work), encoding="utf-8")
-    env = dict(os.environ, PYTHONPATH=str(work), WARP_CACHE_PATH=str(ROOT / ".cache" / "warp-mutate"),
-               PYTHONDONTWRITEBYTECODE="1")
     t0 = time.perf_counter()
     try:
-        proc = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *m.tests],
-                              cwd=work, env=env, capture_output=True, text=True, timeout=timeout)
-        code = proc.returncode
-        output = proc.stdout + proc.stderr
-    except subprocess.TimeoutExpired:
-        code, output = -1, "timed out"
+        code, output = pytest(work, m.tests, timeout)
     finally:
         (work / m.file).write_text(original, encoding="utf-8")
     dt = time.perf_counter() - t0
@@ -118,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", action="append", default=[], help="run mutations whose name contains this")
     ap.add_argument("--list", action="store_true", help="list the mutations and exit")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mutation")
+    ap.add_argument("--no-baseline", action="store_true",
+                    help="skip the check that each test selection passes unmutated")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
     muts = load()
@@ -138,6 +156,14 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="warprt-mutate-") as tmp:
         work = Path(tmp)
         copy_tree(work)
+        if not args.no_baseline:
+            t0 = time.perf_counter()
+            try:
+                baseline(muts, work, args.timeout)
+            except StaleList as e:
+                print(f"error: {e}", file=sys.stderr)
+                return 2
+            print(f"baseline: every test selection passes unmutated ({time.perf_counter() - t0:.0f} s)", flush=True)
         for k, m in enumerate(muts, 1):
             try:
                 verdict, dt = run_one(m, work, args.timeout, args.verbose)

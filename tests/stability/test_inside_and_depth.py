@@ -263,6 +263,40 @@ def test_light_inside_a_transparent_closed_object_is_attenuated_once_by_kt(kind)
 
 # --- hall of mirrors: max_depth, the ray stack, min_weight -------------------------------------
 
+def test_shadow_through_a_transparent_sphere_keeps_kt_per_crossing():
+    """The light outside, above a clear sphere: a floor point's shadow ray crosses the sphere's
+    surface twice (kt²) or not at all (float64 ray-sphere test per pixel; pixels whose shadow ray
+    passes within 1e-4 of the silhouette are left out). The floor is
+    ka·Ia + kt^crossings·I·(kd·n·l + ks·(n·h)^p)."""
+    kt = np.array([0.6, 0.5, 0.4])
+    light = np.array([0.3, 2.6, 0.1])
+    c, r = np.array([0.1, 1.0, 0.2]), 0.6
+    scene = warprt.Scene(
+        camera=warprt.Camera(eye=(0.0, 1.8, 3.5), look_at=(0.0, 0.4, 0.0), fov=55, width=32, height=32),
+        shapes=(warprt.Plane(material="floor"), warprt.Sphere(center=tuple(c), radius=r, material="obj")),
+        materials={"floor": warprt.Material(kd=KD_FLOOR, ka=KA_FLOOR, ks=0.3, p=10),
+                   "obj": warprt.Material(kd=0.0, ka=0.0, transparency=tuple(kt))},
+        lights=(warprt.PointLight(position=tuple(light), intensity=(1.0, 0.9, 0.8)),), ambient=IA,
+        render=warprt.RenderSettings(sampler="regular"))
+    img = image(scene).reshape(-1, 3).astype(np.float64)
+    o, d, h = pixel_hits(scene)
+    floor = h["shape"] == 0
+    p = h["position"][floor].astype(np.float64)
+    l = unit(light - p)
+    # distance from the sphere's centre to each shadow segment's line (the segment spans the
+    # sphere whenever its line does: floor below, light above it)
+    f = c - p
+    perp = np.linalg.norm(f - np.sum(f * l, 1)[:, None] * l, axis=1)
+    crossings = np.where(perp < r, 2, 0)
+    clear = np.abs(perp - r) > 1e-4
+    assert (crossings[clear] == 2).sum() > 30 and (crossings[clear] == 0).sum() > 100
+    ndl = l[:, 1]
+    ndh = unit(l - d[floor])[:, 1]
+    I = np.array([1.0, 0.9, 0.8])
+    expected = KA_FLOOR * IA + kt[None, :] ** crossings[:, None] * I * (KD_FLOOR * ndl + 0.3 * ndh ** 10)[:, None]
+    np.testing.assert_allclose(img[floor][clear], expected[clear], rtol=1e-5, atol=1e-6)
+
+
 KA_M, KM = 0.2, 0.9
 
 
