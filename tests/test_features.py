@@ -93,13 +93,18 @@ def test_analytic_bvh_finds_the_same_hits_as_the_loop(device, monkeypatch):
     scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=32, height=24))
     with_bvh = warprt.Renderer(scene, device=device)
     assert with_bvh.built.analytic_bvh is not None
+    assert_same_as_the_loops(scene, with_bvh, device, monkeypatch)
+
+
+def assert_same_as_the_loops(scene, with_bvh, device, monkeypatch):
+    """The image and the ray-query hits of ``with_bvh`` (built with the analytic BVH) equal those
+    of a renderer built with the loops over each table."""
     monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
     loop = warprt.Renderer(scene, device=device)
     assert loop.built.analytic_bvh is None
     a = with_bvh.render(spp=2, progress=False).image
     b = loop.render(spp=2, progress=False).image
     assert a.tobytes() == b.tobytes()
-    # and through the query API
     o, d = warprt.camera_rays(scene)
     ha, hb = warprt.trace_rays(with_bvh, o, d), warprt.trace_rays(loop, o, d)
     np.testing.assert_array_equal(ha["shape"], hb["shape"])
@@ -141,12 +146,4 @@ def test_long_rectangles_boxed_in_pieces_find_the_same_hits_and_shadows(device, 
     with_bvh = warprt.Renderer(scene, device=device)
     n_bvh_prims = with_bvh.built.data.bvh_prims.shape[0]
     assert n_bvh_prims == 19 * RECT_MAX_PIECES + 2  # two transparent bars whole
-    monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
-    loop = warprt.Renderer(scene, device=device)
-    a = with_bvh.render(spp=2, progress=False).image
-    b = loop.render(spp=2, progress=False).image
-    assert a.tobytes() == b.tobytes()
-    o, d = warprt.camera_rays(scene)
-    ha, hb = warprt.trace_rays(with_bvh, o, d), warprt.trace_rays(loop, o, d)
-    np.testing.assert_array_equal(ha["shape"], hb["shape"])
-    np.testing.assert_array_equal(ha["t"], hb["t"])
+    assert_same_as_the_loops(scene, with_bvh, device, monkeypatch)
