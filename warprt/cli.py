@@ -102,14 +102,12 @@ def _frame_range(text: str) -> range:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from .image import FORMATS, save_image
+    from .image import check_output, save_image
     from .render import Renderer
     from .scene.loader import load_scene
 
-    for out in args.output:
-        ext = os.path.splitext(out)[1].lower()
-        if ext not in FORMATS:
-            raise RenderError(f"{out}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    for out in args.output:  # every output checked before the scene is built or a kernel compiled
+        check_output(out, create_folders=True)
     scene = load_scene(args.scene)
     cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
     settings = {k: v for k, v in (("max_depth", args.max_depth), ("sampler", args.sampler)) if v is not None}
@@ -146,12 +144,10 @@ def _render(args: argparse.Namespace) -> int:
 def _render_sequence(args: argparse.Namespace) -> int:
     from .animation import frame_path, render_sequence
     from .batch import render_frames
-    from .image import FORMATS, save_image
+    from .image import check_output, save_image
     from .scene.loader import load_scene
 
-    ext = os.path.splitext(args.output)[1].lower()
-    if ext not in FORMATS:
-        raise RenderError(f"{args.output}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    check_output(args.output, create_folders=True)  # the pattern's extension and folder, before rendering
     scene = load_scene(args.scene)
     cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
     if cam:
@@ -160,6 +156,8 @@ def _render_sequence(args: argparse.Namespace) -> int:
         except SceneError as e:
             raise e.within(source=args.scene) from None
     frames = list(args.frames) if args.frames is not None else list(range(scene.animation.frames))
+    if frames:
+        check_output(frame_path(args.output, frames[0]), create_folders=True)
     start = time.perf_counter()
     if args.executor == "local":
         paths = render_sequence(scene, output=args.output, frames=frames, spp=args.spp, seed=args.seed,

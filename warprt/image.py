@@ -56,12 +56,48 @@ def _umask() -> int:
     return mask
 
 
+def check_output(path: str | os.PathLike, create_folders: bool = False) -> str:
+    """Check, before any rendering, that an image can be written to ``path``: a supported
+    extension, not a folder, and a folder where a file can be created (with ``create_folders``, a
+    missing folder is fine when it could be created under its nearest existing parent). Raises
+    :class:`RenderError` with one line naming ``path`` and the problem; returns ``path``."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FORMATS:
+        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    if os.path.isdir(path):
+        raise RenderError(f"{path}: is a folder, not an image file")
+    folder = os.path.dirname(os.path.abspath(path))
+    existing = folder
+    while not os.path.lexists(existing):
+        parent = os.path.dirname(existing)
+        if parent == existing:
+            break
+        existing = parent
+    if existing != folder and not create_folders:
+        raise RenderError(f"{path}: the folder {folder!r} does not exist")
+    if not os.path.isdir(existing):
+        raise RenderError(f"{path}: cannot be written: {existing!r} is not a folder")
+    try:  # the only sure test (permissions, read-only mounts, /proc): create a file and remove it
+        fd, probe = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".probe", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise RenderError(f"{path}: cannot be written: cannot create a file in {existing!r} "
+                          f"({e.strerror or e})") from None
+    return path
+
+
 def _atomic_write(path: str, write) -> None:
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise RenderError(f"{path}: the folder {folder!r} does not exist")
     ext = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp" + ext, dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp" + ext, dir=folder)
+    except OSError as e:
+        raise RenderError(f"{path}: cannot be written: cannot create a file in {folder!r} "
+                          f"({e.strerror or e})") from None
     os.close(fd)
     # mkstemp creates the file private (0600); give the finished image the permissions a plain
     # open() would (0666 less the umask), as users of image files expect
