@@ -335,6 +335,13 @@ def test_python_m_warprt_renders(scene_file, tmp_path):
     np.testing.assert_array_equal(rgb, warprt.render(warprt.load_scene(scene_file), spp=1, progress=False))
 
 
+def test_a_complete_png_carries_its_spp_and_no_partial_mark(scene_file, tmp_path, capsys):
+    render_ok(["render", str(scene_file), "-o", str(tmp_path / "a.png"), "-o", str(tmp_path / "a.exr")], capsys)
+    text = Image.open(tmp_path / "a.png").text
+    assert text["warprt_spp"] == "2" and text["warprt_interrupted"] == "0" and "warprt:partial" not in text
+    assert "warprt:partial" not in warprt.read_exr(tmp_path / "a.exr")[1]
+
+
 def test_python_m_warprt_reports_a_bad_scene_in_one_line(tmp_path):
     (tmp_path / "bad.toml").write_text('[[shapes]]\ntype = "sphere"\n[[shapes]]\ntype = "sphere"\nradius = "big"\n')
     (tmp_path / "out.png").write_bytes(b"old")

@@ -376,3 +376,8 @@ def test_writing_to_a_symbolic_link_writes_its_target(tmp_path, ext):
     dangling.symlink_to(tmp_path / "store" / ("new" + ext))
     save_image(np.zeros((2, 2, 3), np.float32), dangling)
     assert dangling.is_symlink() and (tmp_path / "store" / ("new" + ext)).is_file()
+
+
+def test_png_metadata_goes_in_text_chunks(tmp_path):
+    save_image(random_image(), tmp_path / "a.png", metadata={"warprt:partial": "true", "warprt_spp": 7, "flag": True})
+    assert Image.open(tmp_path / "a.png").text == {"warprt:partial": "true", "warprt_spp": "7", "flag": "1"}

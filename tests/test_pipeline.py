@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 import pytest
+from PIL import Image
 import warp as wp
 
 import warprt
@@ -343,8 +344,10 @@ def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text('[camera]\nwidth = 64\nheight = 48\n[[shapes]]\ntype = "sphere"\n[[lights]]\ntype = "point"\n')
     out = tmp_path / "partial.exr"
+    png = tmp_path / "partial.png"
+    png.write_bytes(b"the previous complete image")
     env = dict(os.environ)
-    proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out), "-o", str(png),
                              "--spp", "100000000", "--no-progress"], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)  # import, load the kernel, render a few passes
@@ -354,4 +357,9 @@ def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     _, header = warprt.read_exr(out)
     assert 1 <= int(header["warprt_spp"]) < 100000000 and int(header["warprt_interrupted"]) == 1
     assert "interrupted" in stdout
+    # the partial image is marked as such: in the output line, the EXR header and a PNG text chunk
+    assert "partial image" in stdout.strip().splitlines()[-1]
+    assert header["warprt:partial"] == "true"
+    text = Image.open(png).text
+    assert text["warprt:partial"] == "true" and text["warprt_spp"] == str(header["warprt_spp"])
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary file left

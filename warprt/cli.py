@@ -1,7 +1,9 @@
 """Command line: ``warprt render SCENE -o OUT [...]`` (also ``python -m warprt``).
 
 Exit status: 0 on success, 2 for a bad scene or argument (one line naming the file, field and
-problem, no traceback), 130 when interrupted before any sample was rendered.
+problem, no traceback), 130 when interrupted (Ctrl-C). A render interrupted after its first pass
+still writes the samples reached: the output line says "interrupted: partial image", and the file
+carries ``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes).
 """
 
 from __future__ import annotations
@@ -124,6 +126,8 @@ def _render(args: argparse.Namespace) -> int:
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
                              progress=not args.no_progress, aovs=args.aovs or None)
     meta = {"warprt_spp": result.spp, "warprt_seed": args.seed, "warprt_interrupted": int(result.interrupted)}
+    if result.interrupted:  # a partial image replaces the output: mark it in the file (PNG text, EXR header)
+        meta["warprt:partial"] = "true"
     image = {"color": result.image, **result.aovs} if result.aovs else result.image
     for out in args.output:
         folder = os.path.dirname(out)
@@ -132,7 +136,7 @@ def _render(args: argparse.Namespace) -> int:
         save_image(image, out, metadata=meta)
     total = time.perf_counter() - start
     h, w = result.image.shape[:2]
-    note = " (interrupted)" if result.interrupted else ""
+    note = " (interrupted: partial image)" if result.interrupted else ""
     if result.stack_overflows:
         print(f"warning: {result.stack_overflows} rays dropped on full ray stacks (lower max_depth)", file=sys.stderr)
     print(f"{', '.join(args.output)}: {w}x{h}, {result.spp} spp{note}, render {result.wall_time:.2f} s "

@@ -2,7 +2,7 @@
 
 * ``.exr``: float32 linear RGB through OpenEXR (ZIP compression); extra header attributes
   (``metadata``) are stored as strings, ints or floats, e.g. the samples per pixel reached.
-* ``.png``: linear values are clamped to [0, 1] (values above 1 clip to white: no tone mapping),
+* ``.png``: ``metadata`` goes into text (tEXt) chunks, as strings; linear values are clamped to [0, 1] (values above 1 clip to white: no tone mapping),
   NaN becomes 0, then the sRGB transfer curve is applied and values are rounded to 8 bits.
 
 A file is written to a temporary name in the destination folder (``.NAME.PID.XXXXXXXX.partial``,
@@ -197,8 +197,13 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
     if ext == ".png":
         from PIL import Image
 
+        from PIL.PngImagePlugin import PngInfo
+
         rgb8 = linear_to_srgb8(a[:, :, :3])
-        _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG"))
+        info = PngInfo()
+        for k, v in (metadata or {}).items():  # tEXt chunks, e.g. warprt:partial = true
+            info.add_text(str(k), str(int(v)) if isinstance(v, bool) else str(v))
+        _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG", pnginfo=info))
         return
     channels = {"RGB": a[:, :, :3]}
     for name, data in (layers or {}).items():
