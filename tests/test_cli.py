@@ -240,6 +240,74 @@ def test_unsupported_extension_exits_2_before_rendering(scene_file, tmp_path, ca
     assert out == ""
 
 
+def _unwritable(tmp_path, kind) -> str:
+    if kind == "under-a-file":
+        (tmp_path / "plain.txt").write_text("x")
+        return str(tmp_path / "plain.txt" / "sub" / "out.png")
+    if kind == "proc":
+        return "/proc/warprt-test-out.exr"
+    if kind == "a-folder":
+        (tmp_path / "dir.png").mkdir()
+        return str(tmp_path / "dir.png")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    return str(ro / "out.png")
+
+
+UNWRITABLE = ["under-a-file", "proc", "a-folder", pytest.param(
+    "read-only", marks=pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0,
+                                          reason="root writes into read-only folders"))]
+
+
+@pytest.mark.parametrize("kind", UNWRITABLE)
+def test_an_unwritable_output_exits_2_before_the_scene_is_built(scene_file, tmp_path, capsys, monkeypatch, kind):
+    """Every -o is checked before the render (and before the kernel is compiled): one line naming
+    the output, not a traceback about a hidden temporary file after minutes of rendering."""
+    def never(*a, **k):
+        raise AssertionError("the renderer was built before the output was checked")
+
+    monkeypatch.setattr(warprt.Renderer, "__init__", never)
+    bad = _unwritable(tmp_path, kind)
+    good = tmp_path / "good.png"
+    code, out, err = run(["render", str(scene_file), "-o", str(good), "-o", bad, "--no-progress"], capsys)
+    assert code == 2, err
+    assert err.strip().splitlines() == [err.strip()] and err.startswith(f"warprt: error: {bad}: ")
+    assert "cannot be written" in err or "is a folder" in err
+    assert ".tmp" not in err and ".probe" not in err and out == ""
+    assert not good.exists()
+    assert not [p for p in tmp_path.rglob(".*") if p.is_file()]  # no probe or temporary file left
+
+
+@pytest.mark.parametrize("kind", ["under-a-file", "proc"])
+def test_render_sequence_checks_its_pattern_before_rendering(tmp_path, capsys, monkeypatch, kind):
+    def never(*a, **k):
+        raise AssertionError("the renderer was built before the output was checked")
+
+    monkeypatch.setattr(warprt.Renderer, "__init__", never)
+    (tmp_path / "anim.toml").write_text('[animation]\nframes = 2\n[[shapes]]\ntype = "sphere"\n')
+    pattern = _unwritable(tmp_path, kind).replace("out.", "f_##.").replace("warprt-test-out.", "f_##.")
+    for executor in ("local", "thread"):
+        code, out, err = run(["render-sequence", str(tmp_path / "anim.toml"), "-o", pattern, "--executor", executor,
+                              "--no-progress"], capsys)
+        assert code == 2 and err.strip().splitlines() == [err.strip()] and "cannot be written" in err, err
+    with pytest.raises(warprt.RenderError, match="cannot be written"):
+        warprt.animation.render_sequence(warprt.load_scene(tmp_path / "anim.toml"), output=pattern)
+
+
+def test_check_output_in_the_python_api(tmp_path):
+    assert warprt.check_output(tmp_path / "a.exr") == str(tmp_path / "a.exr")
+    assert warprt.check_output(tmp_path / "new" / "a.png", create_folders=True)
+    with pytest.raises(warprt.RenderError, match="does not exist"):
+        warprt.check_output(tmp_path / "new" / "a.png")
+    with pytest.raises(warprt.RenderError, match="unsupported image format"):
+        warprt.check_output(tmp_path / "a.jpg")
+    (tmp_path / "f").write_text("")
+    with pytest.raises(warprt.RenderError, match="is not a folder"):
+        warprt.check_output(tmp_path / "f" / "a.png", create_folders=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f"]  # nothing created, no probe left
+
+
 def test_no_output_is_a_usage_error(scene_file, capsys):
     code, _, err = run(["render", str(scene_file)], capsys)
     assert code == 2 and "-o" in err
@@ -265,6 +333,13 @@ def test_python_m_warprt_renders(scene_file, tmp_path):
     assert Image.open(tmp_path / "out" / "img.png").size == (24, 16)
     rgb, header = warprt.read_exr(tmp_path / "img.exr")
     np.testing.assert_array_equal(rgb, warprt.render(warprt.load_scene(scene_file), spp=1, progress=False))
+
+
+def test_a_complete_png_carries_its_spp_and_no_partial_mark(scene_file, tmp_path, capsys):
+    render_ok(["render", str(scene_file), "-o", str(tmp_path / "a.png"), "-o", str(tmp_path / "a.exr")], capsys)
+    text = Image.open(tmp_path / "a.png").text
+    assert text["warprt_spp"] == "2" and text["warprt_interrupted"] == "0" and "warprt:partial" not in text
+    assert "warprt:partial" not in warprt.read_exr(tmp_path / "a.exr")[1]
 
 
 def test_python_m_warprt_reports_a_bad_scene_in_one_line(tmp_path):

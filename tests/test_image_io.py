@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import stat
 
 import numpy as np
@@ -276,3 +277,107 @@ def test_written_images_get_the_permissions_of_a_plain_open(tmp_path, ext):
     probe = tmp_path / "probe"
     probe.write_bytes(b"")
     assert stat.S_IMODE(path.stat().st_mode) == stat.S_IMODE(probe.stat().st_mode)
+
+
+# --- temporary files, modes and symbolic links ----------------------------------------------------
+
+
+_KILLED_WRITER = """
+import os, signal, sys
+import numpy as np
+import OpenEXR
+from PIL import Image
+from warprt import save_image
+
+def half_then_kill(path):
+    with open(path, "wb") as f:
+        f.write(b"truncated image")
+        f.flush()
+    os.kill(os.getpid(), signal.SIGKILL)
+
+class File:
+    def __init__(self, header, channels):
+        pass
+    def __enter__(self):
+        return self
+    def __exit__(self, *exc):
+        return False
+    def write(self, path):
+        half_then_kill(path)
+
+OpenEXR.File = File
+Image.Image.save = lambda self, fp, *a, **k: half_then_kill(fp)
+save_image(np.zeros((2, 2, 3), np.float32), sys.argv[1])
+"""
+
+
+def _killed_during_write(path):
+    import subprocess
+    import sys
+
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]),
+                                         *filter(None, [env.get("PYTHONPATH")])])
+    p = subprocess.run([sys.executable, "-c", _KILLED_WRITER, str(path)], env=env, capture_output=True, timeout=120)
+    assert p.returncode == -9, p.stderr
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGKILL")
+@pytest.mark.parametrize("ext", [".exr", ".png"])
+def test_a_write_killed_midway_leaves_no_file_matching_the_image_glob_and_the_next_write_cleans_up(tmp_path, ext):
+    from fnmatch import fnmatch
+
+    path = tmp_path / f"out{ext}"
+    _killed_during_write(path)
+    left = [p.name for p in tmp_path.iterdir()]
+    assert len(left) == 1 and left[0].startswith(".out" + ext + ".")  # the truncated temporary file
+    assert not [n for n in left if fnmatch(n, "*" + ext) or fnmatch(n, "*.exr") or fnmatch(n, "*.png")]
+    # not ours, or of another output, or of a live process: kept
+    others = [f".out{ext}.x.partial", f"out{ext}.bak", f".other{ext}.999999999.abcdefgh.partial",
+              f".out{ext}.1.abcdefgh.partial", f".out{ext}.999999999.abcdefgh.partial.keep"]
+    for name in others:
+        (tmp_path / name).write_bytes(b"keep")
+    save_image(np.ones((2, 2, 3), np.float32), path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([path.name, *others])
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX file modes")
+@pytest.mark.parametrize("ext", [".png", ".exr"])
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o664])
+def test_replacing_an_image_keeps_its_mode(tmp_path, ext, mode):
+    path = tmp_path / ("img" + ext)
+    save_image(np.zeros((2, 3, 3), np.float32), path)
+    path.chmod(mode)
+    save_image(np.ones((2, 3, 3), np.float32), path)
+    assert stat.S_IMODE(path.stat().st_mode) == mode
+
+
+@pytest.mark.skipif(os.name != "posix", reason="symbolic links")
+@pytest.mark.parametrize("ext", [".png", ".exr"])
+def test_writing_to_a_symbolic_link_writes_its_target(tmp_path, ext):
+    (tmp_path / "store").mkdir()
+    (tmp_path / "view").mkdir()
+    target = tmp_path / "store" / ("real" + ext)
+    save_image(np.zeros((2, 3, 3), np.float32), target)
+    target.chmod(0o600)
+    link = tmp_path / "view" / ("img" + ext)
+    link.symlink_to(os.path.join("..", "store", "real" + ext))  # relative, resolved from the link's folder
+    chain = tmp_path / ("chain" + ext)
+    chain.symlink_to(link)
+    for i, through in enumerate([link, chain, tmp_path / "view" / ".." / "view" / ("img" + ext)]):
+        save_image(np.full((2, 3, 3), 0.25 * (i + 1), np.float32), through)
+        assert link.is_symlink() and chain.is_symlink() and target.is_file() and not target.is_symlink()
+        if ext == ".exr":
+            np.testing.assert_array_equal(read_exr(target)[0], np.full((2, 3, 3), 0.25 * (i + 1), np.float32))
+        assert stat.S_IMODE(target.stat().st_mode) == 0o600
+        assert sorted(p.name for p in (tmp_path / "view").iterdir()) == [link.name]  # temp went next to the target
+        assert sorted(p.name for p in (tmp_path / "store").iterdir()) == [target.name]
+    dangling = tmp_path / ("dangling" + ext)
+    dangling.symlink_to(tmp_path / "store" / ("new" + ext))
+    save_image(np.zeros((2, 2, 3), np.float32), dangling)
+    assert dangling.is_symlink() and (tmp_path / "store" / ("new" + ext)).is_file()
+
+
+def test_png_metadata_goes_in_text_chunks(tmp_path):
+    save_image(random_image(), tmp_path / "a.png", metadata={"warprt:partial": "true", "warprt_spp": 7, "flag": True})
+    assert Image.open(tmp_path / "a.png").text == {"warprt:partial": "true", "warprt_spp": "7", "flag": "1"}

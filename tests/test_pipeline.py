@@ -6,6 +6,7 @@ from __future__ import annotations
 import _thread
 import math
 import os
+import pathlib
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import time
 
 import numpy as np
 import pytest
+from PIL import Image
 import warp as wp
 
 import warprt
@@ -21,6 +23,8 @@ from warprt import integrator
 from warprt.animation import frame_scene, render_sequence
 from warprt.batch import ray_available, render_frames
 from warprt.testing import ImageMismatch, assert_images_close, relative_mse
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 pytest_plugins = ["pytester"]
 
@@ -339,12 +343,105 @@ def test_ctrl_c_returns_the_samples_accumulated_so_far():
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_ctrl_c_between_passes_is_not_lost_and_the_handler_is_restored(monkeypatch):
+    """A SIGINT arriving outside a pass (here: while the device synchronises after one) only sets
+    a flag read by the pass loop; it must not escape render() as a KeyboardInterrupt that throws
+    the samples away. The handler is installed for the render only."""
+    scene = _scene().with_camera(width=16, height=12)
+    renderer = warprt.Renderer(scene)
+    renderer.compile()
+    real_sync = wp.synchronize_device
+    calls = []
+
+    def slow_sync(*a, **k):
+        real_sync(*a, **k)
+        calls.append(1)
+        if len(calls) == 3:  # after a pass, outside it
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)  # the signal is handled here, in the main thread
+
+    monkeypatch.setattr(wp, "synchronize_device", slow_sync)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    try:
+        result = renderer.render(spp=1_000_000, pass_spp=1, progress=False)
+    except KeyboardInterrupt:
+        pytest.fail("a Ctrl-C between passes escaped render() and lost the samples")
+    assert result.interrupted and 1 <= result.spp <= 3 and np.isfinite(result.image).all()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_render_outside_the_main_thread_leaves_signals_alone():
+    scene = _scene().with_camera(width=8, height=6)
+    seen = []
+
+    def work():
+        seen.append(warprt.Renderer(scene).render(spp=2, progress=False).spp)
+
+    t = threading.Thread(target=work)
+    t.start()
+    t.join(120)
+    assert seen == [2] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+_REPEATED_CTRL_C = """
+import sys, time
+import numpy as np
+import warprt
+scene = warprt.scene_from_string('[camera]\\nwidth = 32\\nheight = 24\\n[[shapes]]\\ntype = "sphere"\\n'
+                                 '[[lights]]\\ntype = "point"\\n')
+renderer = warprt.Renderer(scene)
+renderer.compile()
+for i in range(int(sys.argv[1])):
+    print("go", flush=True)
+    start = time.perf_counter()
+    try:
+        r = renderer.render(spp=100_000_000, pass_spp=1 + i % 3, progress=False, workers=2)
+    except KeyboardInterrupt:
+        print("escaped", flush=True)
+        sys.exit(3)
+    ok = r.interrupted and r.spp >= 1 and np.isfinite(r.image).all() and r.image.mean() > 0
+    print("done", int(ok), r.spp, f"{time.perf_counter() - start:.2f}", flush=True)
+"""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_real_sigint_repeatedly_stops_a_render_promptly_with_its_samples():
+    """A real SIGINT at a different moment of ten renders (one process, its persistent worker
+    pool reused): each render stops within a pass and returns its partial image; none lets a
+    KeyboardInterrupt escape."""
+    import random
+
+    runs = 10
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    proc = subprocess.Popen([sys.executable, "-c", _REPEATED_CTRL_C, str(runs)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    rng = random.Random(7)
+    try:
+        for i in range(runs):
+            assert proc.stdout.readline().strip() == "go", proc.stderr.read() if proc.poll() is not None else ""
+            time.sleep(rng.uniform(0.05, 0.5))
+            sent = time.perf_counter()
+            proc.send_signal(signal.SIGINT)
+            line = proc.stdout.readline().split()
+            assert line[:2] == ["done", "1"], (i, line, proc.stderr.read() if proc.poll() is not None else "")
+            assert time.perf_counter() - sent < 5.0, (i, line)  # within a pass (passes take ~0.5 s)
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text('[camera]\nwidth = 64\nheight = 48\n[[shapes]]\ntype = "sphere"\n[[lights]]\ntype = "point"\n')
     out = tmp_path / "partial.exr"
+    png = tmp_path / "partial.png"
+    png.write_bytes(b"the previous complete image")
     env = dict(os.environ)
-    proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out), "-o", str(png),
                              "--spp", "100000000", "--no-progress"], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)  # import, load the kernel, render a few passes
@@ -354,4 +451,9 @@ def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     _, header = warprt.read_exr(out)
     assert 1 <= int(header["warprt_spp"]) < 100000000 and int(header["warprt_interrupted"]) == 1
     assert "interrupted" in stdout
+    # the partial image is marked as such: in the output line, the EXR header and a PNG text chunk
+    assert "partial image" in stdout.strip().splitlines()[-1]
+    assert header["warprt:partial"] == "true"
+    text = Image.open(png).text
+    assert text["warprt:partial"] == "true" and text["warprt_spp"] == str(header["warprt_spp"])
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary file left

@@ -12,7 +12,7 @@ The same kernels run on the CPU (tiles over a thread pool) and on CUDA (``device
 
 from .records import Features
 from .errors import RenderError, SceneError
-from .image import read_exr, save_image
+from .image import check_output, read_exr, save_image
 from .query import camera_rays, trace_rays
 from . import animation
 from .render import Renderer, RenderResult, render
@@ -26,6 +26,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Animation", "Camera", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
-    "SphereLight", "Transform", "load_scene", "parse_scene", "read_exr", "render", "save_image",
+    "SphereLight", "Transform", "load_scene", "parse_scene", "check_output", "read_exr", "render", "save_image",
     "scene_from_string", "camera_rays", "trace_rays",
 ]

@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from .errors import RenderError
-from .image import save_image
+from .image import check_output, save_image
 from .render import Renderer
 from .scene.description import Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform
@@ -95,6 +95,8 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
     frames = list(range(scene.animation.frames)) if frames is None else list(frames)
     if not frames:
         raise RenderError("no frames to render")
+    if output is not None:
+        check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     renderer = None
     out = []
     bar = None

@@ -1,7 +1,9 @@
 """Command line: ``warprt render SCENE -o OUT [...]`` (also ``python -m warprt``).
 
 Exit status: 0 on success, 2 for a bad scene or argument (one line naming the file, field and
-problem, no traceback), 130 when interrupted before any sample was rendered.
+problem, no traceback), 130 when interrupted (Ctrl-C). A render interrupted after its first pass
+still writes the samples reached: the output line says "interrupted: partial image", and the file
+carries ``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes).
 """
 
 from __future__ import annotations
@@ -102,14 +104,12 @@ def _frame_range(text: str) -> range:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from .image import FORMATS, save_image
+    from .image import check_output, save_image
     from .render import Renderer
     from .scene.loader import load_scene
 
-    for out in args.output:
-        ext = os.path.splitext(out)[1].lower()
-        if ext not in FORMATS:
-            raise RenderError(f"{out}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    for out in args.output:  # every output checked before the scene is built or a kernel compiled
+        check_output(out, create_folders=True)
     scene = load_scene(args.scene)
     cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
     settings = {k: v for k, v in (("max_depth", args.max_depth), ("sampler", args.sampler)) if v is not None}
@@ -126,6 +126,8 @@ def _render(args: argparse.Namespace) -> int:
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
                              progress=not args.no_progress, aovs=args.aovs or None)
     meta = {"warprt_spp": result.spp, "warprt_seed": args.seed, "warprt_interrupted": int(result.interrupted)}
+    if result.interrupted:  # a partial image replaces the output: mark it in the file (PNG text, EXR header)
+        meta["warprt:partial"] = "true"
     image = {"color": result.image, **result.aovs} if result.aovs else result.image
     for out in args.output:
         folder = os.path.dirname(out)
@@ -134,7 +136,7 @@ def _render(args: argparse.Namespace) -> int:
         save_image(image, out, metadata=meta)
     total = time.perf_counter() - start
     h, w = result.image.shape[:2]
-    note = " (interrupted)" if result.interrupted else ""
+    note = " (interrupted: partial image)" if result.interrupted else ""
     if result.stack_overflows:
         print(f"warning: {result.stack_overflows} rays dropped on full ray stacks (lower max_depth)", file=sys.stderr)
     print(f"{', '.join(args.output)}: {w}x{h}, {result.spp} spp{note}, render {result.wall_time:.2f} s "
@@ -146,12 +148,10 @@ def _render(args: argparse.Namespace) -> int:
 def _render_sequence(args: argparse.Namespace) -> int:
     from .animation import frame_path, render_sequence
     from .batch import render_frames
-    from .image import FORMATS, save_image
+    from .image import check_output, save_image
     from .scene.loader import load_scene
 
-    ext = os.path.splitext(args.output)[1].lower()
-    if ext not in FORMATS:
-        raise RenderError(f"{args.output}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    check_output(args.output, create_folders=True)  # the pattern's extension and folder, before rendering
     scene = load_scene(args.scene)
     cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
     if cam:
@@ -160,6 +160,8 @@ def _render_sequence(args: argparse.Namespace) -> int:
         except SceneError as e:
             raise e.within(source=args.scene) from None
     frames = list(args.frames) if args.frames is not None else list(range(scene.animation.frames))
+    if frames:
+        check_output(frame_path(args.output, frames[0]), create_folders=True)
     start = time.perf_counter()
     if args.executor == "local":
         paths = render_sequence(scene, output=args.output, frames=frames, spp=args.spp, seed=args.seed,

@@ -2,17 +2,21 @@
 
 * ``.exr``: float32 linear RGB through OpenEXR (ZIP compression); extra header attributes
   (``metadata``) are stored as strings, ints or floats, e.g. the samples per pixel reached.
-* ``.png``: linear values are clamped to [0, 1] (values above 1 clip to white: no tone mapping),
+* ``.png``: ``metadata`` goes into text (tEXt) chunks, as strings; linear values are clamped to [0, 1] (values above 1 clip to white: no tone mapping),
   NaN becomes 0, then the sRGB transfer curve is applied and values are rounded to 8 bits.
 
-A file is written to a temporary name in the destination folder and renamed into place, so a
-crash or Ctrl-C never leaves a truncated image, and an existing file is replaced only by a
-complete one.
+A file is written to a temporary name in the destination folder (``.NAME.PID.XXXXXXXX.partial``,
+which matches no ``*.exr``/``*.png`` glob) and renamed into place, so a crash or Ctrl-C never
+leaves a truncated image, and an existing file is replaced only by a complete one. Temporary files
+of the same output left by a killed process are removed by the next write. Replacing a file keeps
+its permissions; writing to a symbolic link writes (atomically) to the file it points to.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import stat
 import tempfile
 from typing import Mapping
 
@@ -56,19 +60,114 @@ def _umask() -> int:
     return mask
 
 
+def check_output(path: str | os.PathLike, create_folders: bool = False) -> str:
+    """Check, before any rendering, that an image can be written to ``path``: a supported
+    extension, not a folder, and a folder where a file can be created (with ``create_folders``, a
+    missing folder is fine when it could be created under its nearest existing parent). Raises
+    :class:`RenderError` with one line naming ``path`` and the problem; returns ``path``."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FORMATS:
+        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    if os.path.isdir(path):
+        raise RenderError(f"{path}: is a folder, not an image file")
+    folder = os.path.dirname(os.path.abspath(_target(path)))
+    existing = folder
+    while not os.path.lexists(existing):
+        parent = os.path.dirname(existing)
+        if parent == existing:
+            break
+        existing = parent
+    if existing != folder and not create_folders:
+        raise RenderError(f"{path}: the folder {folder!r} does not exist")
+    if not os.path.isdir(existing):
+        raise RenderError(f"{path}: cannot be written: {existing!r} is not a folder")
+    try:  # the only sure test (permissions, read-only mounts, /proc): create a file and remove it
+        fd, probe = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".probe", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise RenderError(f"{path}: cannot be written: cannot create a file in {existing!r} "
+                          f"({e.strerror or e})") from None
+    return path
+
+
+TEMP_SUFFIX = ".partial"
+
+
+def _temp_name_pattern(name: str) -> "re.Pattern[str]":
+    """The names of the temporary files written for the output ``name``: ``.NAME.PID.XXXXXXXX.partial``
+    (PID of the writing process, eight random characters of ``tempfile``); they never end in the
+    image's extension, so a file left by a killed process matches no ``*.exr`` or ``*.png`` glob."""
+    return re.compile(r"\." + re.escape(name) + r"\.(\d+)\.[a-z0-9_]{8}" + re.escape(TEMP_SUFFIX) + r"\Z")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True  # a write of this process (another thread's) is under way
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError, OverflowError):
+        return True
+    return True
+
+
+def _remove_stale_temps(folder: str, name: str) -> None:
+    """Remove the temporary files of earlier writes of ``name`` in ``folder`` whose process is
+    gone (killed during a write). Only files of exactly our naming are touched."""
+    pattern = _temp_name_pattern(name)
+    try:
+        entries = os.listdir(folder)
+    except OSError:
+        return
+    for entry in entries:
+        m = pattern.match(entry)
+        if m and not _pid_alive(int(m.group(1))):
+            try:
+                os.unlink(os.path.join(folder, entry))
+            except OSError:
+                pass
+
+
+def _target(path: str) -> str:
+    """The file really written for ``path``: through a symbolic link (chains included), its target."""
+    return os.path.realpath(path) if os.path.islink(path) else path
+
+
 def _atomic_write(path: str, write) -> None:
-    folder = os.path.dirname(os.path.abspath(path))
+    target = _target(path)
+    folder = os.path.dirname(os.path.abspath(target))
     if not os.path.isdir(folder):
         raise RenderError(f"{path}: the folder {folder!r} does not exist")
-    ext = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp" + ext, dir=folder)
-    os.close(fd)
-    # mkstemp creates the file private (0600); give the finished image the permissions a plain
-    # open() would (0666 less the umask), as users of image files expect
-    os.chmod(tmp, 0o666 & ~_umask())
+    name = os.path.basename(target)
+    _remove_stale_temps(folder, name)
     try:
+        old = os.stat(target)
+    except OSError:
+        old = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.{os.getpid()}.", suffix=TEMP_SUFFIX, dir=folder)
+    except OSError as e:
+        raise RenderError(f"{path}: cannot be written: cannot create a file in {folder!r} "
+                          f"({e.strerror or e})") from None
+    os.close(fd)
+    try:
+        if old is not None:
+            # replacing a file: keep its permissions (and, where allowed, its owner and group)
+            os.chmod(tmp, stat.S_IMODE(old.st_mode))
+            if (old.st_uid, old.st_gid) != (os.geteuid(), os.getegid()):
+                try:
+                    os.chown(tmp, old.st_uid, old.st_gid)
+                except OSError:
+                    pass
+        else:
+            # mkstemp creates the file private (0600); give a new image the permissions a plain
+            # open() would (0666 less the umask), as users of image files expect
+            os.chmod(tmp, 0o666 & ~_umask())
         write(tmp)
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
         try:
             os.unlink(tmp)
@@ -98,8 +197,13 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
     if ext == ".png":
         from PIL import Image
 
+        from PIL.PngImagePlugin import PngInfo
+
         rgb8 = linear_to_srgb8(a[:, :, :3])
-        _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG"))
+        info = PngInfo()
+        for k, v in (metadata or {}).items():  # tEXt chunks, e.g. warprt:partial = true
+            info.add_text(str(k), str(int(v)) if isinstance(v, bool) else str(v))
+        _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG", pnginfo=info))
         return
     channels = {"RGB": a[:, :, :3]}
     for name, data in (layers or {}).items():

@@ -13,7 +13,8 @@ image is bit-identical for any slice count, worker count or pass split.
 Progressive rendering: the samples are split into passes (a first pass of one sample per pixel,
 then passes sized to take about half a second). ``time_budget`` stops after the pass that reaches
 the budget, ``target_error`` after the pass whose estimated relative standard error falls below
-it; Ctrl-C finishes the running pass and returns what was accumulated. ``RenderResult.spp`` says
+it; Ctrl-C finishes the running pass and returns what was accumulated (during the passes, SIGINT
+only sets a flag read between passes: see ``_CtrlC``). ``RenderResult.spp`` says
 how many samples per pixel the image holds.
 """
 
@@ -74,6 +75,40 @@ def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int]]:
     """(first row, row stride, pixels) of each of ``count`` interleaved slices of the frame."""
     count = max(1, min(count, height))
     return [(j, count, width * ((height - j + count - 1) // count)) for j in range(count)]
+
+
+class _CtrlC:
+    """Ctrl-C during the pass loop, race-free: while the block runs, a SIGINT handler that only
+    sets ``pressed`` (read by the loop after each pass) replaces Python's default one, so no
+    KeyboardInterrupt can arrive between a pass and its bookkeeping and lose the samples. Installed
+    only from the main thread and only over Python's default handler (a handler of the host
+    application, or an ignored SIGINT, is left alone); the previous handler is restored on exit."""
+
+    def __init__(self):
+        self.pressed = False
+        self._previous = None
+
+    def _handler(self, signum, frame):
+        self.pressed = True
+
+    def __enter__(self):
+        import signal
+
+        if threading.current_thread() is threading.main_thread():
+            try:
+                if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+                    self._previous = signal.signal(signal.SIGINT, self._handler)
+            except (ValueError, OSError):  # not the main interpreter
+                self._previous = None
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
+        return False
 
 
 class Renderer:
@@ -204,7 +239,8 @@ class Renderer:
 
         def run_pass(s0: int, s1: int) -> None:
             """Run samples [s0, s1) on every slice, from the worker threads (also with one worker,
-            so that a Ctrl-C reaching the main thread never splits a launch). The interrupt is held
+            so that a Ctrl-C reaching the main thread never splits a launch). A KeyboardInterrupt
+            (only raised here when the SIGINT handler could not be installed, see _CtrlC) is held
             until the pass is complete, so every pixel holds the same number of samples."""
             stop = False
             next_slice = iter(launches)
@@ -249,26 +285,30 @@ class Renderer:
 
         done, interrupted, rel_err = 0, False, None
         elapsed = 0.0
+        ctrl_c = _CtrlC()
         start = _time.perf_counter()
         try:
-            while done < spp:
-                size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
-                size = min(size, spp - done)
-                try:
-                    run_pass(done, done + size)
-                except KeyboardInterrupt:
-                    interrupted = True
-                wp.synchronize_device(dev)
-                done += size
-                elapsed = _time.perf_counter() - start
-                if bar is not None:
-                    bar.update(size)
-                if interrupted or (time_budget is not None and elapsed >= time_budget):
-                    break
-                if target_error is not None and done >= 2:
-                    rel_err = film.relative_error(done)
-                    if rel_err <= target_error:
+            with ctrl_c:
+                while done < spp:
+                    size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
+                    size = min(size, spp - done)
+                    try:
+                        run_pass(done, done + size)
+                    except KeyboardInterrupt:
+                        interrupted = True
+                    wp.synchronize_device(dev)
+                    done += size
+                    elapsed = _time.perf_counter() - start
+                    if bar is not None:
+                        bar.update(size)
+                    if ctrl_c.pressed:
+                        interrupted = True
+                    if interrupted or (time_budget is not None and elapsed >= time_budget):
                         break
+                    if target_error is not None and done >= 2:
+                        rel_err = film.relative_error(done)
+                        if rel_err <= target_error:
+                            break
         finally:
             if bar is not None:
                 bar.close()
