@@ -205,6 +205,8 @@ def test_missing_scene_file(tmp_path, capsys):
 @pytest.mark.parametrize("args, words", [
     (["--spp", "0"], ["--spp", "positive integer"]),
     (["--spp", "many"], ["--spp", "many"]),
+    (["--spp", "10000000"], ["--spp", "1048576", "--time-budget"]),
+    (["--spp", "1048577"], ["--spp", "1048576"]),
     (["--width", "0"], ["--width", "positive integer"]),
     (["--height", "-3"], ["--height"]),
     (["--max-depth", "-1"], ["--max-depth", ">= 0"]),

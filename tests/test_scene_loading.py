@@ -487,6 +487,7 @@ def test_camera_and_render_fields(tmp_path):
     ('[camera]\neye_end = [0, 0, 0]', "camera.look_at", ["coincide"]),
     ('[render]\nspp = 0', "render.spp", [">= 1"]),
     ('[render]\nspp = "many"', "render.spp", ["integer"]),
+    ('[render]\nspp = 1048577', "render.spp", ["<= 1048576", "time_budget"]),
     ('[render]\nsampler = "halton"', "render.sampler", ["halton", "stratified", "sobol"]),
     ('[render]\nmax_depth = -1', "render.max_depth", [">= 0"]),
     ('[render]\nmax_depth = 1000', "render.max_depth", ["<= 64"]),

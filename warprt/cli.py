@@ -24,6 +24,17 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _spp(text: str) -> int:
+    from .scene.description import SPP_LIMIT
+
+    v = _positive_int(text)
+    if v > SPP_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected at most {SPP_LIMIT} (2^20) samples per pixel, got {v}; "
+                                         "for 'as long as it takes' use --time-budget (or time_budget / "
+                                         "target_error in the Python API)")
+    return v
+
+
 def _non_negative_int(text: str) -> int:
     try:
         v = int(text)
@@ -51,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene file (TOML)")
     r.add_argument("-o", "--output", required=True, action="append",
                    help="output image (.png or .exr); repeat for several formats")
-    r.add_argument("--spp", type=_positive_int, help="samples per pixel (default: the scene's)")
+    r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     r.add_argument("--width", type=_positive_int, help="image width in pixels")
     r.add_argument("--height", type=_positive_int, help="image height in pixels")
@@ -68,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", required=True,
                    help="output pattern, e.g. out/frame_####.png (#### becomes the frame number)")
     q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP")
-    q.add_argument("--spp", type=_positive_int, help="samples per pixel (default: the scene's)")
+    q.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     q.add_argument("--seed", type=int, default=0, help="random seed; frame f uses seed + f")
     q.add_argument("--width", type=_positive_int, help="image width in pixels")
     q.add_argument("--height", type=_positive_int, help="image height in pixels")

@@ -38,7 +38,7 @@ from .errors import RenderError
 from .film import Film
 from .integrator import kernels_for
 from .records import Features
-from .scene.description import Scene
+from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
 
 
 @dataclass
@@ -170,6 +170,8 @@ class Renderer:
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
+        if spp > SPP_LIMIT:
+            raise RenderError(f"spp must be <= {SPP_LIMIT} (2^20), got {spp}; {SPP_LIMIT_HINT}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
             raise RenderError(f"seed must be an integer, got {seed!r}")
         if slices is not None and (isinstance(slices, bool) or not isinstance(slices, (int, np.integer)) or slices < 1):

@@ -678,3 +678,24 @@ def test_many_huge_lights_give_the_clamp_not_inf():
     scene, _ = many_lights_scene(np.full((N_LIGHTS, 3), 1e36), rng, width=8)
     img = image(scene)
     np.testing.assert_array_equal(img, np.float32(CLAMP))
+
+
+# --- limits on the render call ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("how", ["renderer", "render"])
+def test_spp_beyond_the_scene_file_cap_is_refused_before_rendering(how):
+    """One cap on samples per pixel, the scene file's 2^20, also for ``Renderer.render(spp=...)``
+    and ``warprt.render(spp=...)`` (10^7 spp used to render for minutes); the message points to
+    ``time_budget``/``target_error`` for an open-ended render."""
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3))
+    limit = 1 << 20
+    with pytest.raises(warprt.SceneError):
+        scene.with_settings(spp=limit + 1)
+    call = (lambda n: warprt.Renderer(scene, device="cpu").render(spp=n, progress=False)) if how == "renderer" \
+        else (lambda n: warprt.render(scene, spp=n, device="cpu", progress=False))
+    for spp in (limit + 1, 10_000_000):
+        with pytest.raises(warprt.RenderError) as err:
+            call(spp)
+        msg = str(err.value)
+        assert "spp" in msg and "1048576" in msg and "time_budget" in msg and "target_error" in msg, msg

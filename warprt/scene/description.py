@@ -33,6 +33,10 @@ LIGHT_SAMPLING = ("uniform", "cosine")  # RenderSettings.light_sampling (ids: th
 FALLOFFS = ("none", "inverse_square")
 FRESNEL_MODES = ("none", "schlick", "exact")
 MAX_DEPTH_LIMIT = 64
+# most samples per pixel one render may ask for (scene files, --spp, Renderer.render); to render
+# "as long as it takes", ask for SPP_LIMIT with a time_budget or a target_error instead
+SPP_LIMIT = 1 << 20
+SPP_LIMIT_HINT = "for 'as long as it takes' give a time_budget or target_error instead"
 # largest render.clamp: the kernel works in float32 (max 3.4e38) and sums up to 2^20 clamped samples
 # per pixel, so a larger clamp (1e300 is finite in Python, inf on the device) let Inf pixels through
 CLAMP_LIMIT = 1e30
@@ -454,7 +458,9 @@ class RenderSettings:
     light_sampling: str = "cosine"
 
     def __post_init__(self):
-        set_field(self, "spp", as_int(self.spp, "spp", minimum=1, maximum=1 << 20))
+        set_field(self, "spp", as_int(self.spp, "spp", minimum=1))
+        if self.spp > SPP_LIMIT:
+            raise SceneError(f"must be <= {SPP_LIMIT} (2^20), got {self.spp}; {SPP_LIMIT_HINT}", "spp")
         set_field(self, "sampler", as_choice(self.sampler, "sampler", SAMPLERS))
         set_field(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
         set_field(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
