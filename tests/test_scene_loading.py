@@ -813,6 +813,17 @@ def test_python_api_construction_errors_name_the_field(make, field, words):
         assert word in str(err)
 
 
+@pytest.mark.parametrize("scale", [1e-10, 1e-30, 1e10])
+def test_the_up_vector_is_judged_by_its_direction_not_its_length(scale):
+    """The parallel test is relative: up = (0, 1e-10, 0) is the same camera as (0, 1, 0)."""
+    ref = Camera().basis()
+    for got, want in zip(Camera(up=(0, scale, 0)).basis(), ref):
+        np.testing.assert_allclose(got, want, atol=1e-15)
+    with pytest.raises(SceneError) as info:
+        Camera(up=(0, 0, scale))
+    assert info.value.field == "up" and "parallel" in str(info.value)
+
+
 def test_python_api_errors_carry_the_scene_source():
     with pytest.raises(SceneError) as info:
         Scene(shapes=(Sphere(material="gold"),), source="lecture.toml")

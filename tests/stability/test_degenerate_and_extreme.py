@@ -699,3 +699,14 @@ def test_spp_beyond_the_scene_file_cap_is_refused_before_rendering(how):
             call(spp)
         msg = str(err.value)
         assert "spp" in msg and "1048576" in msg and "time_budget" in msg and "target_error" in msg, msg
+
+
+def test_a_tiny_up_vector_renders_the_same_image():
+    """up = (0, 1e-30, 0) is a valid direction: its float32 cross product with w would underflow
+    (|u|² = 1e-60), so the camera uploads the unit up; the image is that of up = (0, 1, 0)."""
+    def scene(up):
+        return warprt.Scene(camera=warprt.Camera(eye=(0.3, 1, 4), up=up, width=12, height=8),
+                            shapes=(warprt.Sphere(),), lights=(warprt.PointLight(),), ambient=0.1)
+    ref = image(scene((0, 1, 0)))
+    assert ref.max() > 0
+    np.testing.assert_array_equal(image(scene((0, 1e-30, 0))), ref)

@@ -138,8 +138,11 @@ class Camera:
         if np.linalg.norm(w) == 0.0:
             raise SceneError("eye and look_at coincide", "look_at")
         w = w / np.linalg.norm(w)
-        u = np.cross(np.asarray(self.up, dtype=float), w)
-        if np.linalg.norm(u) < 1e-9:
+        up = np.asarray(self.up, dtype=float)
+        u = np.cross(up, w)
+        # relative to |up| (w is a unit vector): |up x w| = |up| sin(angle), so a tiny but valid up
+        # such as (0, 1e-10, 0) is accepted and only the angle decides
+        if np.linalg.norm(u) < 1e-9 * np.linalg.norm(up):
             raise SceneError("up is parallel to the viewing direction", "up")
         u = u / np.linalg.norm(u)
         return u, np.cross(w, u), w
