@@ -162,6 +162,8 @@ BAD_SCENES = [
     ('[camera]\neye = [1, 2]\n', "camera.eye", "three numbers"),
     ('[camera]\nwidth = 0\n', "camera.width", ">= 1"),
     ('[camera]\nfov = 180\n', "camera.fov", "< 180"),
+    ('[camera]\neye = [0, 0, 1e39]\n', "camera.eye[2]", "float32"),
+    ('[camera]\ndistance = 1e-46\n', "camera.distance", "float32"),
     ('[materials.red]\ncolour = 1\n', "materials.red", "colour"),
     ('[[shapes]]\ntype = "sphere"\nmaterial = "gold"\n', "shapes[0].material", "gold"),
     ('[[lights]]\ntype = "spot"\n', "lights[0].type", "spot"),

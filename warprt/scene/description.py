@@ -90,11 +90,12 @@ class Camera:
             raise SceneError(f"must be < 180 degrees, got {self.fov:g}", "fov")
         set_field(self, "width", as_int(self.width, "width", minimum=1, maximum=1 << 15))
         set_field(self, "height", as_int(self.height, "height", minimum=1, maximum=1 << 15))
-        set_field(self, "distance", as_float(self.distance, "distance", minimum=0.0, strict_min=True))
-        set_field(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0))
+        set_field(self, "distance",
+                  as_float(self.distance, "distance", minimum=0.0, strict_min=True, float32="normal"))
+        set_field(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0, float32="range"))
         if self.focus_distance is not None:
             set_field(self, "focus_distance",
-                 as_float(self.focus_distance, "focus_distance", minimum=0.0, strict_min=True))
+                 as_float(self.focus_distance, "focus_distance", minimum=0.0, strict_min=True, float32="normal"))
         sh = self.shutter
         if isinstance(sh, (str, bytes)) or not isinstance(sh, (Sequence, np.ndarray)) or len(sh) != 2:
             raise SceneError(f"expected [open, close], got {sh!r}", "shutter")
@@ -207,7 +208,7 @@ class Sphere:
     def __post_init__(self):
         set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("center",)))
         set_field(self, "center", as_vec3(self.center, "center"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _check_material(self)
         if self.center_end is not None:
             set_field(self, "center_end", as_vec3(self.center_end, "center_end"))
@@ -281,7 +282,7 @@ class Disk:
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
         set_field(self, "normal", as_direction(self.normal, "normal"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _check_material(self)
 
 
@@ -417,7 +418,7 @@ class SphereLight:
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _area_light_common(self)
 
     def shape(self) -> Sphere:
@@ -437,7 +438,7 @@ class DiskLight:
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
         set_field(self, "normal", as_direction(self.normal, "normal"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _area_light_common(self)
 
     def shape(self) -> Disk:
@@ -467,12 +468,12 @@ class RenderSettings:
         set_field(self, "sampler", as_choice(self.sampler, "sampler", SAMPLERS))
         set_field(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
         set_field(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
-        set_field(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0))
+        set_field(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0, float32="range"))
         t_max = self.t_max
         if isinstance(t_max, (int, float)) and not isinstance(t_max, bool) and t_max == math.inf:
             set_field(self, "t_max", math.inf)
         else:
-            set_field(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True))
+            set_field(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True, float32="range"))
         if self.t_max <= self.t_min:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
         set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
