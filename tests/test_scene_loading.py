@@ -833,6 +833,35 @@ def test_the_up_vector_is_judged_by_its_direction_not_its_length(scale):
     assert info.value.field == "up" and "parallel" in str(info.value)
 
 
+@pytest.mark.parametrize("make, cls, typo, hint", [
+    (lambda: Sphere(radisu=1), "Sphere", "radisu", "did you mean 'radius'?"),
+    (lambda: Camera(fvo=30), "Camera", "fvo", "did you mean 'fov'?"),
+    (lambda: Scene().with_camera(widht=8), "Camera", "widht", "did you mean 'width'?"),
+    (lambda: Scene().with_settings(sampels=8), "RenderSettings", "sampels", "did you mean 'sampler'?"),
+    (lambda: Transform(translat=(1, 0, 0)), "Transform", "translat", "did you mean 'translate'?"),
+    (lambda: RectLight(radiance=1, samplse=2), "RectLight", "samplse", "did you mean 'samples'?"),
+    (lambda: Material(zzzz=1), "Material", "zzzz", "fields: kd, ka, ks"),
+    (lambda: Scene(shape=()), "Scene", "shape", "did you mean 'shapes'?"),
+])
+def test_a_misspelt_keyword_names_the_class_and_the_closest_field(make, cls, typo, hint):
+    with pytest.raises(SceneError) as info:
+        make()
+    assert info.value.field == typo
+    assert str(info.value).startswith(f"{typo}: {cls} has no field {typo!r}; {hint}")
+
+
+def test_keyword_checks_keep_signatures_defaults_and_replace():
+    import inspect
+
+    assert list(inspect.signature(Sphere).parameters) == [
+        "center", "radius", "material", "center_end", "transform", "keyframes"]
+    assert inspect.signature(Camera).parameters["fov"].default == 45.0
+    s = Sphere((1, 2, 3), 2.0)
+    assert dataclasses.replace(s, radius=3).radius == 3.0 and dataclasses.replace(s, radius=3).center == (1, 2, 3)
+    with pytest.raises(SceneError, match="did you mean 'radius'"):
+        dataclasses.replace(s, radus=3)
+
+
 def test_python_api_errors_carry_the_scene_source():
     with pytest.raises(SceneError) as info:
         Scene(shapes=(Sphere(material="gold"),), source="lecture.toml")

@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import SceneError
 from .transform import Transform, as_transform
 from .values import (
-    RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, norm, set_field,
+    RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, checked_keywords, norm,
+    set_field,
 )
 
 SAMPLERS = ("regular", "independent", "stratified", "sobol")  # RenderSettings.sampler (ids: their order)
@@ -42,6 +43,7 @@ SPP_LIMIT_HINT = "for 'as long as it takes' give a time_budget or target_error i
 CLAMP_LIMIT = 1e30
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Animation:
     """Frames of an animated scene: frame f shows time f / fps (seconds); keyframed objects take
@@ -58,6 +60,7 @@ class Animation:
 # --- camera --------------------------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Camera:
     """Pinhole or thin-lens camera.
@@ -152,6 +155,7 @@ class Camera:
 # --- materials -----------------------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Material:
     """Whitted/Phong material with the distribution extensions.
@@ -196,6 +200,7 @@ def _check_material(obj: Any) -> None:
         raise SceneError(f"expected a material name, got {obj.material!r}", "material")
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Sphere:
     center: Vec3 = (0.0, 0.0, 0.0)
@@ -226,6 +231,7 @@ class Sphere:
         return c0, c1, r
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Plane:
     point: Vec3 = (0.0, 0.0, 0.0)
@@ -246,6 +252,7 @@ class Plane:
         return p, tuple(c / norm(n) for c in n)  # type: ignore
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Rectangle:
     """The parallelogram corner + a·edge1 + b·edge2 for a, b in [0, 1]; its normal is edge1 x edge2."""
@@ -272,6 +279,7 @@ class Rectangle:
         return t.apply_point(self.corner), t.apply_vector(self.edge1), t.apply_vector(self.edge2)
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Disk:
     center: Vec3 = (0.0, 0.0, 0.0)
@@ -286,6 +294,7 @@ class Disk:
         _check_material(self)
 
 
+@checked_keywords
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh from a file (OBJ/PLY/STL/GLB/OFF through trimesh) or inline arrays.
@@ -364,6 +373,7 @@ def validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
 # --- lights --------------------------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class PointLight:
     position: Vec3 = (0.0, 5.0, 5.0)
@@ -381,6 +391,7 @@ def _area_light_common(obj: Any) -> None:
     set_field(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class RectLight:
     """A one-sided emitting parallelogram (emits along edge1 x edge2), visible to camera rays."""
@@ -407,6 +418,7 @@ class RectLight:
         return Rectangle(self.corner, self.edge1, self.edge2)
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class SphereLight:
     """An emitting sphere, sampled by the cone of directions it subtends."""
@@ -425,6 +437,7 @@ class SphereLight:
         return Sphere(self.center, self.radius)
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class DiskLight:
     """A one-sided emitting disk (emits along ``normal``)."""
@@ -448,6 +461,7 @@ class DiskLight:
 # --- render settings and the scene ------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class RenderSettings:
     spp: int = 1  # samples per pixel
@@ -493,6 +507,7 @@ Shape = Sphere | Plane | Rectangle | Disk | Mesh
 Light = PointLight | RectLight | SphereLight | DiskLight
 
 
+@checked_keywords
 @dataclass(frozen=True, eq=False)
 class Scene:
     """Everything needed to render one image. Build it in Python or load it with ``load_scene``."""

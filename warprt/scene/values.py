@@ -3,7 +3,10 @@ naming the field it was given."""
 
 from __future__ import annotations
 
+import difflib
+import functools
 import math
+from dataclasses import fields
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -95,6 +98,26 @@ def as_choice(x: Any, name: str, choices: Sequence[str]) -> str:
     if not isinstance(x, str) or x not in choices:
         raise SceneError(f"must be one of {', '.join(repr(c) for c in choices)}, got {x!r}", name)
     return x
+
+
+def checked_keywords(cls: type) -> type:
+    """Class decorator, over ``@dataclass``: an unknown keyword argument (``Sphere(radisu=1)``)
+    raises :class:`SceneError` naming the class and the closest field, instead of the generated
+    ``__init__``'s bare TypeError. The signature, defaults and ``dataclasses.replace`` are kept."""
+    init = cls.__init__
+    names = [f.name for f in fields(cls) if f.init]
+
+    @functools.wraps(init)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        for key in kwargs:
+            if key not in names:
+                close = difflib.get_close_matches(key, names, n=1)
+                hint = f"did you mean {close[0]!r}?" if close else f"fields: {', '.join(names)}"
+                raise SceneError(f"{cls.__name__} has no field {key!r}; {hint}", key)
+        init(self, *args, **kwargs)
+
+    cls.__init__ = __init__  # type: ignore[method-assign]
+    return cls
 
 
 def set_field(obj: Any, name: str, value: Any) -> None:
