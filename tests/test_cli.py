@@ -204,6 +204,16 @@ def test_missing_scene_file(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_scene_file_that_is_not_utf8_exits_2_with_one_line(tmp_path, capsys):
+    scene = tmp_path / "latin1.toml"
+    scene.write_bytes('# caméra\n[camera]\nwidth = 8\n'.encode("latin-1"))
+    code, out, err = run(["render", str(scene), "-o", str(tmp_path / "a.png"), "--no-progress"], capsys)
+    assert code == 2 and out == ""
+    assert err.strip().splitlines() == [f"warprt: error: {scene}: not UTF-8 text (byte 0xe9 on line 1); "
+                                        "TOML scene files must be UTF-8"], err
+    assert not (tmp_path / "a.png").exists()
+
+
 @pytest.mark.parametrize("args, words", [
     (["--spp", "0"], ["--spp", "positive integer"]),
     (["--spp", "many"], ["--spp", "many"]),
