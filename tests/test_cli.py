@@ -214,6 +214,29 @@ def test_a_scene_file_that_is_not_utf8_exits_2_with_one_line(tmp_path, capsys):
     assert not (tmp_path / "a.png").exists()
 
 
+ANIMATION = "[camera]\nwidth = 8\nheight = 6\n[animation]\nframes = 3\n[[shapes]]\ntype = \"sphere\"\n"
+
+
+@pytest.mark.parametrize("frames, words", [
+    ("-1", ["--frames", "-1"]),
+    ("-3:2", ["--frames", "non-negative"]),
+    ("3", ["outside the animation", "frames 0 to 2", "frames = 3"]),
+    ("1:5", ["frame 3 is outside the animation"]),
+    ("2:2", ["no frames"]),
+])
+def test_render_sequence_refuses_negative_frames_and_frames_past_the_end(tmp_path, capsys, frames, words):
+    scene = tmp_path / "anim.toml"
+    scene.write_text(ANIMATION)
+    code, out, err = run(["render-sequence", str(scene), "-o", str(tmp_path / "f_##.png"), f"--frames={frames}",
+                          "--no-progress"], capsys)
+    assert code == 2 and out == ""
+    last = err.strip().splitlines()[-1]
+    assert "error" in last and all(w in last for w in words), last
+    if not frames.startswith("-"):  # checked by us, not argparse: one line naming the file
+        assert err.strip() == last and last.startswith(f"warprt: error: {scene}: --frames: ")
+    assert not list(tmp_path.glob("f_*"))
+
+
 @pytest.mark.parametrize("args, words", [
     (["--spp", "0"], ["--spp", "positive integer"]),
     (["--spp", "many"], ["--spp", "many"]),

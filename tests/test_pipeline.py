@@ -111,6 +111,16 @@ def test_aovs_go_to_named_exr_layers(tmp_path):
 # --- animation without recompiling ---------------------------------------------------------------
 
 
+@pytest.mark.parametrize("frames, words", [([4], "frame 4 is outside"), ([-1], "frame -1 is outside"),
+                                           ([0.5], "integers"), ([], "no frames")])
+def test_frames_outside_the_animation_are_refused_before_rendering(frames, words):
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3), animation=warprt.Animation(frames=4))
+    for call in (lambda: render_sequence(scene, frames=frames, progress=False),
+                 lambda: render_frames(scene, frames=frames, executor="thread")):
+        with pytest.raises(warprt.RenderError, match=words):
+            call()
+
+
 def _animated() -> warprt.Scene:
     v = np.array([[-1, 0, -1], [1, 0, -1], [0, 1.5, -1.5], [0, 0.5, -0.5]], float)
     f = np.array([[0, 1, 2], [0, 2, 3], [1, 3, 2], [0, 3, 1]])

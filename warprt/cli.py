@@ -78,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("scene", help="scene file (TOML) with an [animation] table and keyframes")
     q.add_argument("-o", "--output", required=True,
                    help="output pattern, e.g. out/frame_####.png (#### becomes the frame number)")
-    q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP")
+    q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP, within the animation's frames")
     q.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     q.add_argument("--seed", type=int, default=0, help="random seed; frame f uses seed + f")
     q.add_argument("--width", type=_positive_int, help="image width in pixels")
@@ -105,7 +105,7 @@ def _frame_range(text: str) -> range:
         parts = [int(p) for p in text.split(":")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected N, A:B or A:B:STEP, got {text!r}") from None
-    if len(parts) == 1:
+    if len(parts) == 1 and parts[0] >= 0:
         return range(parts[0], parts[0] + 1)
     if len(parts) in (2, 3) and all(p >= 0 for p in parts) and (len(parts) == 2 or parts[2] > 0):
         return range(*parts)
@@ -155,7 +155,7 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _render_sequence(args: argparse.Namespace) -> int:
-    from .animation import frame_path, render_sequence
+    from .animation import check_frames, frame_path, render_sequence
     from .batch import render_frames
     from .image import FORMATS, save_image
     from .scene.loader import load_scene
@@ -170,7 +170,7 @@ def _render_sequence(args: argparse.Namespace) -> int:
             scene = scene.with_camera(**cam)
         except SceneError as e:
             raise e.within(source=args.scene) from None
-    frames = list(args.frames) if args.frames is not None else list(range(scene.animation.frames))
+    frames = check_frames(scene, args.frames, name=f"{args.scene}: --frames")
     start = time.perf_counter()
     if args.executor == "local":
         paths = render_sequence(scene, output=args.output, frames=frames, spp=args.spp, seed=args.seed,
