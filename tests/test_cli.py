@@ -249,6 +249,8 @@ def test_render_sequence_refuses_negative_frames_and_frames_past_the_end(tmp_pat
     (["--workers", "0"], ["--workers"]),
     (["--time-budget", "0"], ["--time-budget", "positive"]),
     (["--seed", "x"], ["--seed"]),
+    (["--seed", "-1"], ["--seed", "4294967295", "-1"]),
+    (["--seed", "4294967296"], ["--seed", "4294967295"]),
     (["--colour", "red"], ["--colour"]),
 ])
 def test_bad_arguments_exit_2_and_write_nothing(scene_file, tmp_path, capsys, args, words):

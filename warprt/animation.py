@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import RenderError
 from .image import save_image
-from .render import Renderer
+from .render import Renderer, check_seed
 from .scene.description import Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform
 
@@ -109,6 +109,7 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
     Returns the images (or, with ``output``, writes each frame atomically and returns the paths).
     """
     frames = check_frames(scene, frames)
+    check_seed(seed)
     renderer = None
     out = []
     bar = None

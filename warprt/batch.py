@@ -25,7 +25,7 @@ import numpy as np
 
 from .animation import check_frames, frame_scene, frame_seed, render_sequence
 from .errors import RenderError
-from .render import Renderer
+from .render import Renderer, check_seed
 from .scene.description import Scene
 
 EXECUTORS = ("local", "thread", "process", "ray")
@@ -59,6 +59,7 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
     if executor not in EXECUTORS:
         raise RenderError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     frames = check_frames(scene, frames)
+    check_seed(seed)
     if executor == "local":
         return render_sequence(scene, frames=frames, spp=spp, seed=seed, device=device, progress=False)
     if executor == "ray":

@@ -35,6 +35,16 @@ def _spp(text: str) -> int:
     return v
 
 
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 0 <= v < 1 << 32:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to 2^32 - 1 = {(1 << 32) - 1}, got {v}")
+    return v
+
+
 def _non_negative_int(text: str) -> int:
     try:
         v = int(text)
@@ -63,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-o", "--output", required=True, action="append",
                    help="output image (.png or .exr); repeat for several formats")
     r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
-    r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    r.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1 (default 0)")
     r.add_argument("--width", type=_positive_int, help="image width in pixels")
     r.add_argument("--height", type=_positive_int, help="image height in pixels")
     r.add_argument("--max-depth", type=_non_negative_int, help="reflection/refraction depth limit")
@@ -80,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output pattern, e.g. out/frame_####.png (#### becomes the frame number)")
     q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP, within the animation's frames")
     q.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
-    q.add_argument("--seed", type=int, default=0, help="random seed; frame f uses seed + f")
+    q.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1; frame f uses seed + f (mod 2^32)")
     q.add_argument("--width", type=_positive_int, help="image width in pixels")
     q.add_argument("--height", type=_positive_int, help="image height in pixels")
     q.add_argument("--device", help="Warp device")

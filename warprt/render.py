@@ -41,6 +41,19 @@ from .records import Features
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
 
 
+SEED_LIMIT = 1 << 32  # seeds are 32-bit: 0 <= seed < 2^32
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """``seed`` if it is an integer in [0, 2^32): the kernels hash a 32-bit seed, and taking a
+    larger or negative one modulo 2^32 would silently give another seed's image."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise RenderError(f"{name} must be an integer, got {seed!r}")
+    if not 0 <= seed < SEED_LIMIT:
+        raise RenderError(f"{name} must be in [0, 2^32 - 1 = {SEED_LIMIT - 1}], got {seed}")
+    return int(seed)
+
+
 @dataclass
 class RenderResult:
     image: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top (a wp.array with as_warp)
@@ -172,8 +185,7 @@ class Renderer:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
         if spp > SPP_LIMIT:
             raise RenderError(f"spp must be <= {SPP_LIMIT} (2^20), got {spp}; {SPP_LIMIT_HINT}")
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-            raise RenderError(f"seed must be an integer, got {seed!r}")
+        check_seed(seed)
         if slices is not None and (isinstance(slices, bool) or not isinstance(slices, (int, np.integer)) or slices < 1):
             raise RenderError(f"slices must be a positive integer, got {slices!r}")
         if time_budget is not None and not (time_budget > 0):

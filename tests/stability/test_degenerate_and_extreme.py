@@ -710,3 +710,25 @@ def test_a_tiny_up_vector_renders_the_same_image():
     ref = image(scene((0, 1, 0)))
     assert ref.max() > 0
     np.testing.assert_array_equal(image(scene((0, 1e-30, 0))), ref)
+
+
+@pytest.mark.parametrize("seed", [-1, 1 << 32, (1 << 32) + 5, 2 ** 70])
+def test_seeds_outside_32_bits_are_refused_not_wrapped(seed):
+    """Seeds are 32-bit; -1 or 2^32 + 5 used to be taken modulo 2^32 silently (2^32 + 5 gave the
+    image of seed 5). Renderer.render, render, render_sequence and render_frames refuse them."""
+    from warprt.animation import render_sequence
+    from warprt.batch import render_frames
+
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3))
+    for call in (lambda: warprt.Renderer(scene, device="cpu").render(seed=seed, progress=False),
+                 lambda: warprt.render(scene, seed=seed, device="cpu", progress=False),
+                 lambda: render_sequence(scene, seed=seed, device="cpu", progress=False),
+                 lambda: render_frames(scene, seed=seed, executor="thread")):
+        with pytest.raises(warprt.RenderError, match=r"seed must be in \[0, 2\^32 - 1 = 4294967295\]"):
+            call()
+
+
+def test_the_largest_seed_renders():
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3), shapes=(warprt.Sphere(),),
+                         lights=(warprt.PointLight(),))
+    assert np.isfinite(image(scene, seed=(1 << 32) - 1)).all()
