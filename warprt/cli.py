@@ -88,7 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("scene", help="scene file (TOML) with an [animation] table and keyframes")
     q.add_argument("-o", "--output", required=True,
                    help="output pattern, e.g. out/frame_####.png (#### becomes the frame number)")
-    q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP, within the animation's frames")
+    q.add_argument("--frames", type=_frame_range,
+                   help="frames to render: N, A:B (B excluded) or A:B:STEP, within the animation's frames")
     q.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     q.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1; frame f uses seed + f (mod 2^32)")
     q.add_argument("--width", type=_positive_int, help="image width in pixels")
