@@ -204,6 +204,17 @@ def test_missing_scene_file(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_huge_scene_warns_in_one_line(tmp_path, capsys):
+    scene = tmp_path / "huge.toml"
+    scene.write_text("[camera]\neye = [0, 0, 5e20]\nwidth = 8\nheight = 6\n"
+                     "[[shapes]]\ntype = \"sphere\"\nradius = 1e20\n")
+    code, out, err = run(["render", str(scene), "-o", str(tmp_path / "a.png"), "--no-progress"], capsys)
+    assert code == 0
+    assert err.strip().splitlines() == [
+        f"warprt: warning: {scene}: scene coordinates reach 5e+20: beyond about 1e+19 the renderer's float32 "
+        "squared distances overflow and surfaces or lights may vanish; scale the scene down"], err
+
+
 def test_a_scene_file_that_is_not_utf8_exits_2_with_one_line(tmp_path, capsys):
     scene = tmp_path / "latin1.toml"
     scene.write_bytes('# caméra\n[camera]\nwidth = 8\n'.encode("latin-1"))

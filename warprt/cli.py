@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 
 from .errors import RenderError, SceneError
 
@@ -201,8 +202,19 @@ def _render_sequence(args: argparse.Namespace) -> int:
     return 0
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings (huge scene extents, dropped mesh faces) as one line each, without source lines."""
+    print(f"warprt: warning: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return _main(args)
+
+
+def _main(args: argparse.Namespace) -> int:
     try:
         if args.command == "render":
             return _render(args)

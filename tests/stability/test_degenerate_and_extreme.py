@@ -732,3 +732,21 @@ def test_the_largest_seed_renders():
     scene = warprt.Scene(camera=warprt.Camera(width=4, height=3), shapes=(warprt.Sphere(),),
                          lights=(warprt.PointLight(),))
     assert np.isfinite(image(scene, seed=(1 << 32) - 1)).all()
+
+
+def _scaled_scene(scale, source=None):
+    return warprt.Scene(camera=warprt.Camera(eye=(0, 0, 5 * scale), width=16, height=12),
+                        shapes=(warprt.Sphere(radius=scale),), lights=(warprt.PointLight(position=(0, 5 * scale, 0)),),
+                        ambient=0.1, source=source)
+
+
+def test_a_scene_beyond_1e19_warns_that_float32_distances_overflow():
+    """At scale 1e19 the squared distances of the sphere test overflow float32 and the image is
+    black (exit 0 before); the renderer now warns, naming the extent. 1e18 renders and is quiet."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warprt.Renderer(_scaled_scene(1e18), device="cpu")
+    with pytest.warns(RuntimeWarning, match=r"scene coordinates reach 5e\+19.*scale the scene down"):
+        warprt.Renderer(_scaled_scene(1e19), device="cpu")

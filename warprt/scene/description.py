@@ -494,6 +494,38 @@ class RenderSettings:
         set_field(self, "light_sampling", as_choice(self.light_sampling, "light_sampling", LIGHT_SAMPLING))
 
 
+# beyond this, squared distances (|o - c|² in the sphere test, |p - x|² to a light) overflow
+# float32 (sqrt(3.4e38) = 1.8e19, less a margin for sums): surfaces and lights vanish
+EXTENT_WARNING = 1e19
+
+
+def scene_extent(scene: "Scene") -> float:
+    """Largest absolute world coordinate (plus radii) of the camera, analytic shapes and lights
+    (meshes are checked against 1e30 when their vertices are read)."""
+    cam = scene.camera
+    values: list[float] = [*cam.eye, *cam.look_at, *(cam.eye_end or ()), *(cam.look_at_end or ())]
+    for k in cam.keyframes:
+        values += [*k.get("eye", ()), *k.get("look_at", ())]
+    shapes = list(scene.shapes) + [light.shape() for light in scene.lights if is_area_light(light)]
+    for s in shapes:
+        if isinstance(s, Sphere):
+            c0, c1, r = s.world()
+            values += [abs(x) + r for x in (*c0, *c1)]
+            for k in s.keyframes:
+                values += [abs(x) + r for x in k.get("center", ())]
+        elif isinstance(s, Plane):
+            values += list(s.world()[0])
+        elif isinstance(s, Rectangle):
+            c, e1, e2 = s.world()
+            values += [abs(a) + abs(b) + abs(d) for a, b, d in zip(c, e1, e2)]
+        elif isinstance(s, Disk):
+            values += [abs(x) + s.radius for x in s.center]
+    for light in scene.lights:
+        if isinstance(light, PointLight):
+            values += list(light.position)
+    return max((abs(v) for v in values), default=0.0)
+
+
 def is_area_light(light) -> bool:
     """An area light is emission on a shape: it gives its emitting surface through ``.shape()``."""
     return callable(getattr(light, "shape", None))
