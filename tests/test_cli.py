@@ -162,6 +162,8 @@ BAD_SCENES = [
     ('[camera]\neye = [1, 2]\n', "camera.eye", "three numbers"),
     ('[camera]\nwidth = 0\n', "camera.width", ">= 1"),
     ('[camera]\nfov = 180\n', "camera.fov", "< 180"),
+    ('[camera]\neye = [0, 0, 1e39]\n', "camera.eye[2]", "float32"),
+    ('[camera]\ndistance = 1e-46\n', "camera.distance", "float32"),
     ('[materials.red]\ncolour = 1\n', "materials.red", "colour"),
     ('[[shapes]]\ntype = "sphere"\nmaterial = "gold"\n', "shapes[0].material", "gold"),
     ('[[lights]]\ntype = "spot"\n', "lights[0].type", "spot"),
@@ -202,9 +204,55 @@ def test_missing_scene_file(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_huge_scene_warns_in_one_line(tmp_path, capsys):
+    scene = tmp_path / "huge.toml"
+    scene.write_text("[camera]\neye = [0, 0, 5e20]\nwidth = 8\nheight = 6\n"
+                     "[[shapes]]\ntype = \"sphere\"\nradius = 1e20\n")
+    code, out, err = run(["render", str(scene), "-o", str(tmp_path / "a.png"), "--no-progress"], capsys)
+    assert code == 0
+    assert err.strip().splitlines() == [
+        f"warprt: warning: {scene}: scene coordinates reach 5e+20: beyond about 1e+19 the renderer's float32 "
+        "squared distances overflow and surfaces or lights may vanish; scale the scene down"], err
+
+
+def test_a_scene_file_that_is_not_utf8_exits_2_with_one_line(tmp_path, capsys):
+    scene = tmp_path / "latin1.toml"
+    scene.write_bytes('# caméra\n[camera]\nwidth = 8\n'.encode("latin-1"))
+    code, out, err = run(["render", str(scene), "-o", str(tmp_path / "a.png"), "--no-progress"], capsys)
+    assert code == 2 and out == ""
+    assert err.strip().splitlines() == [f"warprt: error: {scene}: not UTF-8 text (byte 0xe9 on line 1); "
+                                        "TOML scene files must be UTF-8"], err
+    assert not (tmp_path / "a.png").exists()
+
+
+ANIMATION = "[camera]\nwidth = 8\nheight = 6\n[animation]\nframes = 3\n[[shapes]]\ntype = \"sphere\"\n"
+
+
+@pytest.mark.parametrize("frames, words", [
+    ("-1", ["--frames", "-1"]),
+    ("-3:2", ["--frames", "non-negative"]),
+    ("3", ["outside the animation", "frames 0 to 2", "frames = 3"]),
+    ("1:5", ["frame 3 is outside the animation"]),
+    ("2:2", ["no frames"]),
+])
+def test_render_sequence_refuses_negative_frames_and_frames_past_the_end(tmp_path, capsys, frames, words):
+    scene = tmp_path / "anim.toml"
+    scene.write_text(ANIMATION)
+    code, out, err = run(["render-sequence", str(scene), "-o", str(tmp_path / "f_##.png"), f"--frames={frames}",
+                          "--no-progress"], capsys)
+    assert code == 2 and out == ""
+    last = err.strip().splitlines()[-1]
+    assert "error" in last and all(w in last for w in words), last
+    if not frames.startswith("-"):  # checked by us, not argparse: one line naming the file
+        assert err.strip() == last and last.startswith(f"warprt: error: {scene}: --frames: ")
+    assert not list(tmp_path.glob("f_*"))
+
+
 @pytest.mark.parametrize("args, words", [
     (["--spp", "0"], ["--spp", "positive integer"]),
     (["--spp", "many"], ["--spp", "many"]),
+    (["--spp", "10000000"], ["--spp", "1048576", "--time-budget"]),
+    (["--spp", "1048577"], ["--spp", "1048576"]),
     (["--width", "0"], ["--width", "positive integer"]),
     (["--height", "-3"], ["--height"]),
     (["--max-depth", "-1"], ["--max-depth", ">= 0"]),
@@ -212,6 +260,8 @@ def test_missing_scene_file(tmp_path, capsys):
     (["--workers", "0"], ["--workers"]),
     (["--time-budget", "0"], ["--time-budget", "positive"]),
     (["--seed", "x"], ["--seed"]),
+    (["--seed", "-1"], ["--seed", "4294967295", "-1"]),
+    (["--seed", "4294967296"], ["--seed", "4294967295"]),
     (["--colour", "red"], ["--colour"]),
 ])
 def test_bad_arguments_exit_2_and_write_nothing(scene_file, tmp_path, capsys, args, words):

@@ -115,6 +115,16 @@ def test_aovs_go_to_named_exr_layers(tmp_path):
 # --- animation without recompiling ---------------------------------------------------------------
 
 
+@pytest.mark.parametrize("frames, words", [([4], "frame 4 is outside"), ([-1], "frame -1 is outside"),
+                                           ([0.5], "integers"), ([], "no frames")])
+def test_frames_outside_the_animation_are_refused_before_rendering(frames, words):
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3), animation=warprt.Animation(frames=4))
+    for call in (lambda: render_sequence(scene, frames=frames, progress=False),
+                 lambda: render_frames(scene, frames=frames, executor="thread")):
+        with pytest.raises(warprt.RenderError, match=words):
+            call()
+
+
 def _animated() -> warprt.Scene:
     v = np.array([[-1, 0, -1], [1, 0, -1], [0, 1.5, -1.5], [0, 0.5, -0.5]], float)
     f = np.array([[0, 1, 2], [0, 2, 3], [1, 3, 2], [0, 3, 1]])
@@ -442,14 +452,14 @@ def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     png.write_bytes(b"the previous complete image")
     env = dict(os.environ)
     proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out), "-o", str(png),
-                             "--spp", "100000000", "--no-progress"], env=env,
+                             "--spp", "1048576", "--no-progress"], env=env,  # the spp limit, 2^20
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(4.0)  # import, load the kernel, render a few passes
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
     _, header = warprt.read_exr(out)
-    assert 1 <= int(header["warprt_spp"]) < 100000000 and int(header["warprt_interrupted"]) == 1
+    assert 1 <= int(header["warprt_spp"]) < 1048576 and int(header["warprt_interrupted"]) == 1
     assert "interrupted" in stdout
     # the partial image is marked as such: in the output line, the EXR header and a PNG text chunk
     assert "partial image" in stdout.strip().splitlines()[-1]

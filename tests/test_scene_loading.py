@@ -487,6 +487,16 @@ def test_camera_and_render_fields(tmp_path):
     ('[camera]\neye_end = [0, 0, 0]', "camera.look_at", ["coincide"]),
     ('[render]\nspp = 0', "render.spp", [">= 1"]),
     ('[render]\nspp = "many"', "render.spp", ["integer"]),
+    ('[render]\nspp = 1048577', "render.spp", ["<= 1048576", "time_budget"]),
+    ('[camera]\neye = [0, 0, 1e39]', "camera.eye[2]", ["1e+39", "float32"]),
+    ('[camera]\nlook_at_end = [-4e38, 0, 0]', "camera.look_at_end[0]", ["float32"]),
+    ('[camera]\ndistance = 1e-46', "camera.distance", ["1e-46", "float32", "normal"]),
+    ('[camera]\nfocus_distance = 1e-39', "camera.focus_distance", ["float32"]),
+    ('[[shapes]]\ntype = "sphere"\nradius = 1e39', "shapes[0].radius", ["float32"]),
+    ('[[shapes]]\ntype = "sphere"\ntransform = { scale = 1e39 }', "shapes[0].transform.scale[0]", ["float32"]),
+    ('[[shapes]]\ntype = "plane"\nnormal = [0, 1e39, 0]', "shapes[0].normal[1]", ["float32"]),
+    ('[[lights]]\ntype = "point"\nposition = [0, 1e39, 0]', "lights[0].position[1]", ["float32"]),
+    ('[render]\nt_max = 1e39', "render.t_max", ["float32"]),
     ('[render]\nsampler = "halton"', "render.sampler", ["halton", "stratified", "sobol"]),
     ('[render]\nmax_depth = -1', "render.max_depth", [">= 0"]),
     ('[render]\nmax_depth = 1000', "render.max_depth", ["<= 64"]),
@@ -810,6 +820,46 @@ def test_python_api_construction_errors_name_the_field(make, field, words):
     assert str(err).startswith(f"{field}: ")
     for word in words:
         assert word in str(err)
+
+
+@pytest.mark.parametrize("scale", [1e-10, 1e-30, 1e10])
+def test_the_up_vector_is_judged_by_its_direction_not_its_length(scale):
+    """The parallel test is relative: up = (0, 1e-10, 0) is the same camera as (0, 1, 0)."""
+    ref = Camera().basis()
+    for got, want in zip(Camera(up=(0, scale, 0)).basis(), ref):
+        np.testing.assert_allclose(got, want, atol=1e-15)
+    with pytest.raises(SceneError) as info:
+        Camera(up=(0, 0, scale))
+    assert info.value.field == "up" and "parallel" in str(info.value)
+
+
+@pytest.mark.parametrize("make, cls, typo, hint", [
+    (lambda: Sphere(radisu=1), "Sphere", "radisu", "did you mean 'radius'?"),
+    (lambda: Camera(fvo=30), "Camera", "fvo", "did you mean 'fov'?"),
+    (lambda: Scene().with_camera(widht=8), "Camera", "widht", "did you mean 'width'?"),
+    (lambda: Scene().with_settings(sampels=8), "RenderSettings", "sampels", "did you mean 'sampler'?"),
+    (lambda: Transform(translat=(1, 0, 0)), "Transform", "translat", "did you mean 'translate'?"),
+    (lambda: RectLight(radiance=1, samplse=2), "RectLight", "samplse", "did you mean 'samples'?"),
+    (lambda: Material(zzzz=1), "Material", "zzzz", "fields: kd, ka, ks"),
+    (lambda: Scene(shape=()), "Scene", "shape", "did you mean 'shapes'?"),
+])
+def test_a_misspelt_keyword_names_the_class_and_the_closest_field(make, cls, typo, hint):
+    with pytest.raises(SceneError) as info:
+        make()
+    assert info.value.field == typo
+    assert str(info.value).startswith(f"{typo}: {cls} has no field {typo!r}; {hint}")
+
+
+def test_keyword_checks_keep_signatures_defaults_and_replace():
+    import inspect
+
+    assert list(inspect.signature(Sphere).parameters) == [
+        "center", "radius", "material", "center_end", "transform", "keyframes"]
+    assert inspect.signature(Camera).parameters["fov"].default == 45.0
+    s = Sphere((1, 2, 3), 2.0)
+    assert dataclasses.replace(s, radius=3).radius == 3.0 and dataclasses.replace(s, radius=3).center == (1, 2, 3)
+    with pytest.raises(SceneError, match="did you mean 'radius'"):
+        dataclasses.replace(s, radus=3)
 
 
 def test_python_api_errors_carry_the_scene_source():

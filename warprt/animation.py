@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import RenderError
 from .image import check_output, save_image
-from .render import Renderer
+from .render import Renderer, check_seed
 from .scene.description import Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform
 
@@ -86,15 +86,30 @@ def frame_seed(seed: int, frame: int) -> int:
     return (int(seed) + int(frame)) & 0xFFFFFFFF
 
 
+def check_frames(scene: Scene, frames=None, name: str = "frames") -> list[int]:
+    """The frame numbers to render (default: all of them), each an integer in [0, animation.frames):
+    a frame past the animation's end is an error, not a silent render of the last pose."""
+    n = scene.animation.frames
+    frames = list(range(n)) if frames is None else list(frames)
+    if not frames:
+        raise RenderError(f"{name}: no frames to render")
+    for f in frames:
+        if isinstance(f, bool) or not isinstance(f, (int, np.integer)):
+            raise RenderError(f"{name}: frame numbers must be integers, got {f!r}")
+        if not 0 <= f < n:
+            raise RenderError(f"{name}: frame {f} is outside the animation, which has frames 0 to {n - 1} "
+                              f"([animation] frames = {n})")
+    return [int(f) for f in frames]
+
+
 def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: int | None = None, seed: int = 0,
                     device: str | None = None, progress: bool | None = None, aovs=None) -> list:
     """Render frames of an animated scene in this process, reusing one Renderer.
 
     Returns the images (or, with ``output``, writes each frame atomically and returns the paths).
     """
-    frames = list(range(scene.animation.frames)) if frames is None else list(frames)
-    if not frames:
-        raise RenderError("no frames to render")
+    frames = check_frames(scene, frames)
+    check_seed(seed)
     if output is not None:
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     renderer = None

@@ -23,9 +23,9 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import numpy as np
 
-from .animation import frame_scene, frame_seed, render_sequence
+from .animation import check_frames, frame_scene, frame_seed, render_sequence
 from .errors import RenderError
-from .render import Renderer
+from .render import Renderer, check_seed
 from .scene.description import Scene
 
 EXECUTORS = ("local", "thread", "process", "ray")
@@ -58,7 +58,8 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
         raise RenderError(f"render_frames() needs a warprt.Scene, got {type(scene).__name__}")
     if executor not in EXECUTORS:
         raise RenderError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
-    frames = list(range(scene.animation.frames)) if frames is None else [int(f) for f in frames]
+    frames = check_frames(scene, frames)
+    check_seed(seed)
     if executor == "local":
         return render_sequence(scene, frames=frames, spp=spp, seed=seed, device=device, progress=False)
     if executor == "ray":

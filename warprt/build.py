@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import warp as wp
@@ -25,7 +26,9 @@ from .records import (
     features_of, table,
 )
 from .sampling import SAMPLER_IDS
-from .scene.description import LIGHT_SAMPLING, Material, Mesh, PointLight, Scene, is_area_light
+from .scene.description import (
+    EXTENT_WARNING, LIGHT_SAMPLING, Material, Mesh, PointLight, Scene, is_area_light, scene_extent,
+)
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
 
@@ -46,6 +49,12 @@ class DeviceScene:
             self._build()
         except SceneError as e:
             raise e.within(source=scene.source) from None
+        extent = scene_extent(scene)
+        if extent > EXTENT_WARNING:
+            where = f"{scene.source}: " if scene.source else ""
+            warnings.warn(f"{where}scene coordinates reach {extent:.3g}: beyond about {EXTENT_WARNING:g} the "
+                          "renderer's float32 squared distances overflow and surfaces or lights may vanish; "
+                          "scale the scene down", RuntimeWarning, stacklevel=3)
 
     # the tables are built as lists of record fields, then copied once to the device
     def _build(self) -> None:

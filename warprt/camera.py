@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import warp as wp
 
 from .records import CameraData
@@ -83,7 +84,8 @@ def camera_data(scene: Scene) -> CameraData:
     eye1, look1 = cam.pose(1.0)
     c.eye0, c.eye1 = wp.vec3(*cam.eye), wp.vec3(*eye1)
     c.look0, c.look1 = wp.vec3(*cam.look_at), wp.vec3(*look1)
-    c.up = wp.vec3(*cam.up)
+    up = np.asarray(cam.up, dtype=np.float64)
+    c.up = wp.vec3(*(up / np.linalg.norm(up)))  # unit length: a tiny up would underflow in float32
     c.top = cam.distance * math.tan(math.radians(cam.fov) / 2.0)
     c.right = c.top * cam.aspect
     c.dist = cam.distance

@@ -12,6 +12,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 
 from .errors import RenderError, SceneError
 
@@ -23,6 +24,27 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def _spp(text: str) -> int:
+    from .scene.description import SPP_LIMIT
+
+    v = _positive_int(text)
+    if v > SPP_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected at most {SPP_LIMIT} (2^20) samples per pixel, got {v}; "
+                                         "for 'as long as it takes' use --time-budget (or time_budget / "
+                                         "target_error in the Python API)")
+    return v
+
+
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 0 <= v < 1 << 32:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to 2^32 - 1 = {(1 << 32) - 1}, got {v}")
     return v
 
 
@@ -53,8 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene file (TOML)")
     r.add_argument("-o", "--output", required=True, action="append",
                    help="output image (.png or .exr); repeat for several formats")
-    r.add_argument("--spp", type=_positive_int, help="samples per pixel (default: the scene's)")
-    r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
+    r.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1 (default 0)")
     r.add_argument("--width", type=_positive_int, help="image width in pixels")
     r.add_argument("--height", type=_positive_int, help="image height in pixels")
     r.add_argument("--max-depth", type=_non_negative_int, help="reflection/refraction depth limit")
@@ -69,9 +91,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("scene", help="scene file (TOML) with an [animation] table and keyframes")
     q.add_argument("-o", "--output", required=True,
                    help="output pattern, e.g. out/frame_####.png (#### becomes the frame number)")
-    q.add_argument("--frames", type=_frame_range, help="frames to render: N, A:B (B excluded) or A:B:STEP")
-    q.add_argument("--spp", type=_positive_int, help="samples per pixel (default: the scene's)")
-    q.add_argument("--seed", type=int, default=0, help="random seed; frame f uses seed + f")
+    q.add_argument("--frames", type=_frame_range,
+                   help="frames to render: N, A:B (B excluded) or A:B:STEP, within the animation's frames")
+    q.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
+    q.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1; frame f uses seed + f (mod 2^32)")
     q.add_argument("--width", type=_positive_int, help="image width in pixels")
     q.add_argument("--height", type=_positive_int, help="image height in pixels")
     q.add_argument("--device", help="Warp device")
@@ -96,7 +119,7 @@ def _frame_range(text: str) -> range:
         parts = [int(p) for p in text.split(":")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected N, A:B or A:B:STEP, got {text!r}") from None
-    if len(parts) == 1:
+    if len(parts) == 1 and parts[0] >= 0:
         return range(parts[0], parts[0] + 1)
     if len(parts) in (2, 3) and all(p >= 0 for p in parts) and (len(parts) == 2 or parts[2] > 0):
         return range(*parts)
@@ -146,7 +169,7 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _render_sequence(args: argparse.Namespace) -> int:
-    from .animation import frame_path, render_sequence
+    from .animation import check_frames, frame_path, render_sequence
     from .batch import render_frames
     from .image import check_output, save_image
     from .scene.loader import load_scene
@@ -159,7 +182,7 @@ def _render_sequence(args: argparse.Namespace) -> int:
             scene = scene.with_camera(**cam)
         except SceneError as e:
             raise e.within(source=args.scene) from None
-    frames = list(args.frames) if args.frames is not None else list(range(scene.animation.frames))
+    frames = check_frames(scene, args.frames, name=f"{args.scene}: --frames")
     if frames:
         check_output(frame_path(args.output, frames[0]), create_folders=True)
     start = time.perf_counter()
@@ -181,8 +204,19 @@ def _render_sequence(args: argparse.Namespace) -> int:
     return 0
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings (huge scene extents, dropped mesh faces) as one line each, without source lines."""
+    print(f"warprt: warning: {message}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        return _main(args)
+
+
+def _main(args: argparse.Namespace) -> int:
     try:
         if args.command == "render":
             return _render(args)

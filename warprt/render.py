@@ -39,7 +39,20 @@ from .errors import RenderError
 from .film import Film
 from .integrator import kernels_for
 from .records import Features
-from .scene.description import Scene
+from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
+
+
+SEED_LIMIT = 1 << 32  # seeds are 32-bit: 0 <= seed < 2^32
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """``seed`` if it is an integer in [0, 2^32): the kernels hash a 32-bit seed, and taking a
+    larger or negative one modulo 2^32 would silently give another seed's image."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise RenderError(f"{name} must be an integer, got {seed!r}")
+    if not 0 <= seed < SEED_LIMIT:
+        raise RenderError(f"{name} must be in [0, 2^32 - 1 = {SEED_LIMIT - 1}], got {seed}")
+    return int(seed)
 
 
 @dataclass
@@ -205,8 +218,9 @@ class Renderer:
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-            raise RenderError(f"seed must be an integer, got {seed!r}")
+        if spp > SPP_LIMIT:
+            raise RenderError(f"spp must be <= {SPP_LIMIT} (2^20), got {spp}; {SPP_LIMIT_HINT}")
+        check_seed(seed)
         if slices is not None and (isinstance(slices, bool) or not isinstance(slices, (int, np.integer)) or slices < 1):
             raise RenderError(f"slices must be a positive integer, got {slices!r}")
         if time_budget is not None and not (time_budget > 0):

@@ -678,3 +678,75 @@ def test_many_huge_lights_give_the_clamp_not_inf():
     scene, _ = many_lights_scene(np.full((N_LIGHTS, 3), 1e36), rng, width=8)
     img = image(scene)
     np.testing.assert_array_equal(img, np.float32(CLAMP))
+
+
+# --- limits on the render call ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("how", ["renderer", "render"])
+def test_spp_beyond_the_scene_file_cap_is_refused_before_rendering(how):
+    """One cap on samples per pixel, the scene file's 2^20, also for ``Renderer.render(spp=...)``
+    and ``warprt.render(spp=...)`` (10^7 spp used to render for minutes); the message points to
+    ``time_budget``/``target_error`` for an open-ended render."""
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3))
+    limit = 1 << 20
+    with pytest.raises(warprt.SceneError):
+        scene.with_settings(spp=limit + 1)
+    call = (lambda n: warprt.Renderer(scene, device="cpu").render(spp=n, progress=False)) if how == "renderer" \
+        else (lambda n: warprt.render(scene, spp=n, device="cpu", progress=False))
+    for spp in (limit + 1, 10_000_000):
+        with pytest.raises(warprt.RenderError) as err:
+            call(spp)
+        msg = str(err.value)
+        assert "spp" in msg and "1048576" in msg and "time_budget" in msg and "target_error" in msg, msg
+
+
+def test_a_tiny_up_vector_renders_the_same_image():
+    """up = (0, 1e-30, 0) is a valid direction: its float32 cross product with w would underflow
+    (|u|² = 1e-60), so the camera uploads the unit up; the image is that of up = (0, 1, 0)."""
+    def scene(up):
+        return warprt.Scene(camera=warprt.Camera(eye=(0.3, 1, 4), up=up, width=12, height=8),
+                            shapes=(warprt.Sphere(),), lights=(warprt.PointLight(),), ambient=0.1)
+    ref = image(scene((0, 1, 0)))
+    assert ref.max() > 0
+    np.testing.assert_array_equal(image(scene((0, 1e-30, 0))), ref)
+
+
+@pytest.mark.parametrize("seed", [-1, 1 << 32, (1 << 32) + 5, 2 ** 70])
+def test_seeds_outside_32_bits_are_refused_not_wrapped(seed):
+    """Seeds are 32-bit; -1 or 2^32 + 5 used to be taken modulo 2^32 silently (2^32 + 5 gave the
+    image of seed 5). Renderer.render, render, render_sequence and render_frames refuse them."""
+    from warprt.animation import render_sequence
+    from warprt.batch import render_frames
+
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3))
+    for call in (lambda: warprt.Renderer(scene, device="cpu").render(seed=seed, progress=False),
+                 lambda: warprt.render(scene, seed=seed, device="cpu", progress=False),
+                 lambda: render_sequence(scene, seed=seed, device="cpu", progress=False),
+                 lambda: render_frames(scene, seed=seed, executor="thread")):
+        with pytest.raises(warprt.RenderError, match=r"seed must be in \[0, 2\^32 - 1 = 4294967295\]"):
+            call()
+
+
+def test_the_largest_seed_renders():
+    scene = warprt.Scene(camera=warprt.Camera(width=4, height=3), shapes=(warprt.Sphere(),),
+                         lights=(warprt.PointLight(),))
+    assert np.isfinite(image(scene, seed=(1 << 32) - 1)).all()
+
+
+def _scaled_scene(scale, source=None):
+    return warprt.Scene(camera=warprt.Camera(eye=(0, 0, 5 * scale), width=16, height=12),
+                        shapes=(warprt.Sphere(radius=scale),), lights=(warprt.PointLight(position=(0, 5 * scale, 0)),),
+                        ambient=0.1, source=source)
+
+
+def test_a_scene_beyond_1e19_warns_that_float32_distances_overflow():
+    """At scale 1e19 the squared distances of the sphere test overflow float32 and the image is
+    black (exit 0 before); the renderer now warns, naming the extent. 1e18 renders and is quiet."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warprt.Renderer(_scaled_scene(1e18), device="cpu")
+    with pytest.warns(RuntimeWarning, match=r"scene coordinates reach 5e\+19.*scale the scene down"):
+        warprt.Renderer(_scaled_scene(1e19), device="cpu")

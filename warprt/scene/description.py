@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import SceneError
 from .transform import Transform, as_transform
 from .values import (
-    RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, norm, set_field,
+    RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, checked_keywords, norm,
+    set_field,
 )
 
 SAMPLERS = ("regular", "independent", "stratified", "sobol")  # RenderSettings.sampler (ids: their order)
@@ -33,11 +34,16 @@ LIGHT_SAMPLING = ("uniform", "cosine")  # RenderSettings.light_sampling (ids: th
 FALLOFFS = ("none", "inverse_square")
 FRESNEL_MODES = ("none", "schlick", "exact")
 MAX_DEPTH_LIMIT = 64
+# most samples per pixel one render may ask for (scene files, --spp, Renderer.render); to render
+# "as long as it takes", ask for SPP_LIMIT with a time_budget or a target_error instead
+SPP_LIMIT = 1 << 20
+SPP_LIMIT_HINT = "for 'as long as it takes' give a time_budget or target_error instead"
 # largest render.clamp: the kernel works in float32 (max 3.4e38) and sums up to 2^20 clamped samples
 # per pixel, so a larger clamp (1e300 is finite in Python, inf on the device) let Inf pixels through
 CLAMP_LIMIT = 1e30
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Animation:
     """Frames of an animated scene: frame f shows time f / fps (seconds); keyframed objects take
@@ -54,6 +60,7 @@ class Animation:
 # --- camera --------------------------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Camera:
     """Pinhole or thin-lens camera.
@@ -86,11 +93,12 @@ class Camera:
             raise SceneError(f"must be < 180 degrees, got {self.fov:g}", "fov")
         set_field(self, "width", as_int(self.width, "width", minimum=1, maximum=1 << 15))
         set_field(self, "height", as_int(self.height, "height", minimum=1, maximum=1 << 15))
-        set_field(self, "distance", as_float(self.distance, "distance", minimum=0.0, strict_min=True))
-        set_field(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0))
+        set_field(self, "distance",
+                  as_float(self.distance, "distance", minimum=0.0, strict_min=True, float32="normal"))
+        set_field(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0, float32="range"))
         if self.focus_distance is not None:
             set_field(self, "focus_distance",
-                 as_float(self.focus_distance, "focus_distance", minimum=0.0, strict_min=True))
+                 as_float(self.focus_distance, "focus_distance", minimum=0.0, strict_min=True, float32="normal"))
         sh = self.shutter
         if isinstance(sh, (str, bytes)) or not isinstance(sh, (Sequence, np.ndarray)) or len(sh) != 2:
             raise SceneError(f"expected [open, close], got {sh!r}", "shutter")
@@ -134,8 +142,11 @@ class Camera:
         if np.linalg.norm(w) == 0.0:
             raise SceneError("eye and look_at coincide", "look_at")
         w = w / np.linalg.norm(w)
-        u = np.cross(np.asarray(self.up, dtype=float), w)
-        if np.linalg.norm(u) < 1e-9:
+        up = np.asarray(self.up, dtype=float)
+        u = np.cross(up, w)
+        # relative to |up| (w is a unit vector): |up x w| = |up| sin(angle), so a tiny but valid up
+        # such as (0, 1e-10, 0) is accepted and only the angle decides
+        if np.linalg.norm(u) < 1e-9 * np.linalg.norm(up):
             raise SceneError("up is parallel to the viewing direction", "up")
         u = u / np.linalg.norm(u)
         return u, np.cross(w, u), w
@@ -144,6 +155,7 @@ class Camera:
 # --- materials -----------------------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Material:
     """Whitted/Phong material with the distribution extensions.
@@ -188,6 +200,7 @@ def _check_material(obj: Any) -> None:
         raise SceneError(f"expected a material name, got {obj.material!r}", "material")
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Sphere:
     center: Vec3 = (0.0, 0.0, 0.0)
@@ -200,7 +213,7 @@ class Sphere:
     def __post_init__(self):
         set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("center",)))
         set_field(self, "center", as_vec3(self.center, "center"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _check_material(self)
         if self.center_end is not None:
             set_field(self, "center_end", as_vec3(self.center_end, "center_end"))
@@ -218,6 +231,7 @@ class Sphere:
         return c0, c1, r
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Plane:
     point: Vec3 = (0.0, 0.0, 0.0)
@@ -238,6 +252,7 @@ class Plane:
         return p, tuple(c / norm(n) for c in n)  # type: ignore
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Rectangle:
     """The parallelogram corner + a·edge1 + b·edge2 for a, b in [0, 1]; its normal is edge1 x edge2."""
@@ -264,6 +279,7 @@ class Rectangle:
         return t.apply_point(self.corner), t.apply_vector(self.edge1), t.apply_vector(self.edge2)
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Disk:
     center: Vec3 = (0.0, 0.0, 0.0)
@@ -274,10 +290,11 @@ class Disk:
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
         set_field(self, "normal", as_direction(self.normal, "normal"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _check_material(self)
 
 
+@checked_keywords
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh from a file (OBJ/PLY/STL/GLB/OFF through trimesh) or inline arrays.
@@ -356,6 +373,7 @@ def validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
 # --- lights --------------------------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class PointLight:
     position: Vec3 = (0.0, 5.0, 5.0)
@@ -373,6 +391,7 @@ def _area_light_common(obj: Any) -> None:
     set_field(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class RectLight:
     """A one-sided emitting parallelogram (emits along edge1 x edge2), visible to camera rays."""
@@ -399,6 +418,7 @@ class RectLight:
         return Rectangle(self.corner, self.edge1, self.edge2)
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class SphereLight:
     """An emitting sphere, sampled by the cone of directions it subtends."""
@@ -410,13 +430,14 @@ class SphereLight:
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _area_light_common(self)
 
     def shape(self) -> Sphere:
         return Sphere(self.center, self.radius)
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class DiskLight:
     """A one-sided emitting disk (emits along ``normal``)."""
@@ -430,7 +451,7 @@ class DiskLight:
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
         set_field(self, "normal", as_direction(self.normal, "normal"))
-        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
         _area_light_common(self)
 
     def shape(self) -> Disk:
@@ -440,6 +461,7 @@ class DiskLight:
 # --- render settings and the scene ------------------------------------------------------------
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class RenderSettings:
     spp: int = 1  # samples per pixel
@@ -454,20 +476,54 @@ class RenderSettings:
     light_sampling: str = "cosine"
 
     def __post_init__(self):
-        set_field(self, "spp", as_int(self.spp, "spp", minimum=1, maximum=1 << 20))
+        set_field(self, "spp", as_int(self.spp, "spp", minimum=1))
+        if self.spp > SPP_LIMIT:
+            raise SceneError(f"must be <= {SPP_LIMIT} (2^20), got {self.spp}; {SPP_LIMIT_HINT}", "spp")
         set_field(self, "sampler", as_choice(self.sampler, "sampler", SAMPLERS))
         set_field(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
         set_field(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
-        set_field(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0))
+        set_field(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0, float32="range"))
         t_max = self.t_max
         if isinstance(t_max, (int, float)) and not isinstance(t_max, bool) and t_max == math.inf:
             set_field(self, "t_max", math.inf)
         else:
-            set_field(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True))
+            set_field(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True, float32="range"))
         if self.t_max <= self.t_min:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
         set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
         set_field(self, "light_sampling", as_choice(self.light_sampling, "light_sampling", LIGHT_SAMPLING))
+
+
+# beyond this, squared distances (|o - c|² in the sphere test, |p - x|² to a light) overflow
+# float32 (sqrt(3.4e38) = 1.8e19, less a margin for sums): surfaces and lights vanish
+EXTENT_WARNING = 1e19
+
+
+def scene_extent(scene: "Scene") -> float:
+    """Largest absolute world coordinate (plus radii) of the camera, analytic shapes and lights
+    (meshes are checked against 1e30 when their vertices are read)."""
+    cam = scene.camera
+    values: list[float] = [*cam.eye, *cam.look_at, *(cam.eye_end or ()), *(cam.look_at_end or ())]
+    for k in cam.keyframes:
+        values += [*k.get("eye", ()), *k.get("look_at", ())]
+    shapes = list(scene.shapes) + [light.shape() for light in scene.lights if is_area_light(light)]
+    for s in shapes:
+        if isinstance(s, Sphere):
+            c0, c1, r = s.world()
+            values += [abs(x) + r for x in (*c0, *c1)]
+            for k in s.keyframes:
+                values += [abs(x) + r for x in k.get("center", ())]
+        elif isinstance(s, Plane):
+            values += list(s.world()[0])
+        elif isinstance(s, Rectangle):
+            c, e1, e2 = s.world()
+            values += [abs(a) + abs(b) + abs(d) for a, b, d in zip(c, e1, e2)]
+        elif isinstance(s, Disk):
+            values += [abs(x) + s.radius for x in s.center]
+    for light in scene.lights:
+        if isinstance(light, PointLight):
+            values += list(light.position)
+    return max((abs(v) for v in values), default=0.0)
 
 
 def is_area_light(light) -> bool:
@@ -483,6 +539,7 @@ Shape = Sphere | Plane | Rectangle | Disk | Mesh
 Light = PointLight | RectLight | SphereLight | DiskLight
 
 
+@checked_keywords
 @dataclass(frozen=True, eq=False)
 class Scene:
     """Everything needed to render one image. Build it in Python or load it with ``load_scene``."""

@@ -112,6 +112,12 @@ def load_scene(path: str | os.PathLike) -> Scene:
         raise SceneError("is a directory, not a scene file", source=path) from None
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"not valid TOML: {_with_line(e, path)}", source=path) from None
+    except UnicodeDecodeError as e:
+        line = e.object[:e.start].count(b"\n") + 1
+        raise SceneError(f"not UTF-8 text (byte 0x{e.object[e.start]:02x} on line {line}); TOML scene files must be "
+                         f"UTF-8", source=path) from None
+    except OSError as e:
+        raise SceneError(f"cannot read the scene file: {e.strerror or e}", source=path) from None
     return parse_scene(data, source=path, base_dir=os.path.dirname(os.path.abspath(path)))
 
 

@@ -10,9 +10,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import SceneError
-from .values import Vec3, as_vec3, set_field
+from .values import Vec3, as_vec3, checked_keywords, set_field
 
 
+@checked_keywords
 @dataclass(frozen=True)
 class Transform:
     """Scale, then rotate (Euler angles in degrees about x, then y, then z), then translate."""

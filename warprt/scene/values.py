@@ -3,7 +3,10 @@ naming the field it was given."""
 
 from __future__ import annotations
 
+import difflib
+import functools
 import math
+from dataclasses import fields
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -12,6 +15,22 @@ from ..errors import SceneError
 
 Vec3 = tuple[float, float, float]
 RGB = tuple[float, float, float]
+
+# the kernels compute in float32: a finite Python float beyond FLT_MAX becomes Inf on the device,
+# a non-zero one below FLT_MIN_NORMAL loses its precision (and below 1.4e-45 becomes 0)
+FLT_MAX = float(np.finfo(np.float32).max)  # 3.4e38
+FLT_MIN_NORMAL = float(np.finfo(np.float32).tiny)  # 1.2e-38
+
+
+def in_float32(x: float, name: str, *, normal: bool = False) -> float:
+    """``x`` if float32 holds it: |x| <= 3.4e38 and, with ``normal``, x = 0 or |x| >= 1.2e-38
+    (for lengths the math divides by or squares)."""
+    if abs(x) > FLT_MAX:
+        raise SceneError(f"{x:g} is beyond the float32 range the renderer computes in (|x| <= {FLT_MAX:.3g})", name)
+    if normal and x != 0.0 and abs(x) < FLT_MIN_NORMAL:
+        raise SceneError(f"{x:g} is below float32's smallest normal number {FLT_MIN_NORMAL:.3g} and would be lost "
+                         f"on the device", name)
+    return x
 
 
 def finite(x: float, name: str) -> float:
@@ -24,12 +43,15 @@ def finite(x: float, name: str) -> float:
 
 
 def as_float(x: Any, name: str, *, minimum: float | None = None, maximum: float | None = None,
-             strict_min: bool = False) -> float:
+             strict_min: bool = False, float32: str | None = None) -> float:
+    """``float32``: ``"range"`` refuses |x| > 3.4e38, ``"normal"`` also a non-zero |x| < 1.2e-38."""
     x = finite(x, name)
     if minimum is not None and (x < minimum or (strict_min and x == minimum)):
         raise SceneError(f"must be {'>' if strict_min else '>='} {minimum:g}, got {x:g}", name)
     if maximum is not None and x > maximum:
         raise SceneError(f"must be <= {maximum:g}, got {x:g}", name)
+    if float32 is not None:
+        in_float32(x, name, normal=float32 == "normal")
     return x
 
 
@@ -50,7 +72,8 @@ def as_int(x: Any, name: str, *, minimum: int | None = None, maximum: int | None
 def as_vec3(x: Any, name: str) -> Vec3:
     if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 3:
         raise SceneError(f"expected three numbers [x, y, z], got {x!r}", name)
-    return tuple(finite(v, f"{name}[{i}]") for i, v in enumerate(x))  # type: ignore[return-value]
+    return tuple(in_float32(finite(v, f"{name}[{i}]"), f"{name}[{i}]")  # type: ignore[return-value]
+                 for i, v in enumerate(x))
 
 
 def as_direction(x: Any, name: str) -> Vec3:
@@ -75,6 +98,26 @@ def as_choice(x: Any, name: str, choices: Sequence[str]) -> str:
     if not isinstance(x, str) or x not in choices:
         raise SceneError(f"must be one of {', '.join(repr(c) for c in choices)}, got {x!r}", name)
     return x
+
+
+def checked_keywords(cls: type) -> type:
+    """Class decorator, over ``@dataclass``: an unknown keyword argument (``Sphere(radisu=1)``)
+    raises :class:`SceneError` naming the class and the closest field, instead of the generated
+    ``__init__``'s bare TypeError. The signature, defaults and ``dataclasses.replace`` are kept."""
+    init = cls.__init__
+    names = [f.name for f in fields(cls) if f.init]
+
+    @functools.wraps(init)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        for key in kwargs:
+            if key not in names:
+                close = difflib.get_close_matches(key, names, n=1)
+                hint = f"did you mean {close[0]!r}?" if close else f"fields: {', '.join(names)}"
+                raise SceneError(f"{cls.__name__} has no field {key!r}; {hint}", key)
+        init(self, *args, **kwargs)
+
+    cls.__init__ = __init__  # type: ignore[method-assign]
+    return cls
 
 
 def set_field(obj: Any, name: str, value: Any) -> None:
