@@ -405,7 +405,7 @@ for i in range(int(sys.argv[1])):
     print("go", flush=True)
     start = time.perf_counter()
     try:
-        r = renderer.render(spp=100_000_000, pass_spp=1 + i % 3, progress=False, workers=2)
+        r = renderer.render(spp=1 << 20, pass_spp=1 + i % 3, progress=False, workers=2)  # the spp limit
     except KeyboardInterrupt:
         print("escaped", flush=True)
         sys.exit(3)
