@@ -402,3 +402,89 @@ def test_python_m_warprt_reports_a_bad_scene_in_one_line(tmp_path):
     assert "Traceback" not in p.stderr and p.stdout == ""
     assert (tmp_path / "out.png").read_bytes() == b"old"
     assert sorted(x.name for x in tmp_path.iterdir()) == ["bad.toml", "out.png"]
+
+
+# --- Ctrl-C during render-sequence ----------------------------------------------------------------------
+
+ANIMATED = """\
+[camera]
+width = 32
+height = 24
+[animation]
+frames = 8
+[[shapes]]
+type = "sphere"
+keyframes = [{time = 0, center = [0, 0, 0]}, {time = 1, center = [0.5, 0, 0]}]
+[[lights]]
+type = "point"
+"""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("executor", ["local", "thread", "process"])
+def test_render_sequence_interrupted_keeps_the_finished_frames_and_exits_130(tmp_path, executor):
+    """A real SIGINT once the first frame file appears: the run stops promptly (not every frame is
+    rendered), exits 130, prints the complete frames, and exactly those files exist, none marked
+    partial (the frame cut short is not written)."""
+    import signal
+    import time
+
+    (tmp_path / "anim.toml").write_text(ANIMATED)
+    env = dict(os.environ)
+    env.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    args = ["render-sequence", "anim.toml", "-o", "out/f_####.png", "--spp", "1000", "--no-progress",
+            "--executor", executor] + ([] if executor == "local" else ["--jobs", "1"])
+    proc = subprocess.Popen([sys.executable, "-m", "warprt", *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob("out/*.png")):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read() if proc.poll() else ""
+            time.sleep(0.02)
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert time.monotonic() - sent < 15, "did not stop promptly"
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    written = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert 1 <= len(written) < 8, written  # stopped before the end
+    m = re.match(r"interrupted: (\d+) of 8 frames complete \(([\d, ]+)\)", stdout.strip().splitlines()[-1])
+    assert m, stdout
+    complete = [int(x) for x in m[2].split(", ")]
+    assert written == [f"f_{f:04d}.png" for f in complete] and int(m[1]) == len(complete)
+    for name in written:  # complete frames: full spp, no partial mark
+        text = Image.open(tmp_path / "out" / name).text
+        assert text["warprt_spp"] == "1000" and "warprt:partial" not in text
+
+
+def test_render_frames_interrupted_raises_with_the_finished_frames(tmp_path, monkeypatch):
+    """Python API: a Ctrl-C (here: the render of frame 1 reports an interruption) gives a
+    FramesInterrupted listing frame 0 with its written path; frame 1 is not written, frame 2 not rendered."""
+    from warprt.batch import render_frames
+    from warprt.errors import FramesInterrupted
+    from warprt.render import Renderer
+
+    scene = warprt.scene_from_string(ANIMATED.replace("32", "8").replace("24", "6"))
+    calls = []
+    real = Renderer.render
+
+    def render(self, *a, **k):
+        r = real(self, *a, **k)
+        calls.append(1)
+        r.interrupted = len(calls) == 2
+        return r
+
+    monkeypatch.setattr(Renderer, "render", render)
+    with pytest.raises(FramesInterrupted) as info:
+        render_frames(scene, frames=[0, 1, 2], spp=1, output=str(tmp_path / "f_#.png"))
+    e = info.value
+    assert isinstance(e, KeyboardInterrupt)
+    assert e.frames == [0] and e.results == [str(tmp_path / "f_0.png")] and e.cut_short == [1]
+    assert "1 of 3 frames complete (0)" in str(e) and "cut short and not written: 1" in str(e)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0.png"] and len(calls) == 2

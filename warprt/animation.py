@@ -20,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .errors import RenderError
+from .errors import FramesInterrupted, RenderError
 from .image import check_output, save_image
 from .render import Renderer, check_seed
 from .scene.description import Camera, Mesh, Scene, Sphere
@@ -106,14 +106,24 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
                     device: str | None = None, progress: bool | None = None, aovs=None) -> list:
     """Render frames of an animated scene in this process, reusing one Renderer.
 
-    Returns the images (or, with ``output``, writes each frame atomically and returns the paths).
+    Returns the images (or, with ``output``, writes each frame atomically as it finishes and
+    returns the paths).
+
+    Ctrl-C stops the frame being rendered within a pass; that frame is cut short and is neither
+    written nor returned (a partial frame under the normal name would slip into a video), the
+    frames after it are not rendered, and :class:`warprt.errors.FramesInterrupted` (a
+    ``KeyboardInterrupt``) is raised, listing the complete frames (``.frames``) with their images
+    or paths (``.results``); those frames are already written.
     """
+    from .render import _CtrlC
+
     frames = check_frames(scene, frames)
     check_seed(seed)
     if output is not None:
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     renderer = None
-    out = []
+    done, out = [], []
+    cut_short: list[int] = []
     bar = None
     show = sys.stderr.isatty() if progress is None else progress
     if show:
@@ -128,18 +138,27 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
             else:
                 renderer.update(fs)
             result = renderer.render(spp=spp, seed=frame_seed(seed, f), progress=False, aovs=aovs)
+            if result.interrupted:
+                cut_short.append(f)
+                raise KeyboardInterrupt
             image = {"color": result.image, **result.aovs} if aovs else result.image
-            if output is not None:
-                path = frame_path(output, f)
-                folder = os.path.dirname(path)
-                if folder:
-                    os.makedirs(folder, exist_ok=True)
-                save_image(image, path, metadata={"warprt_spp": result.spp, "warprt_frame": f})
-                out.append(path)
-            else:
-                out.append(image)
+            with _CtrlC() as ctrl_c:  # a Ctrl-C now lets the frame be written (and counted) first
+                if output is not None:
+                    path = frame_path(output, f)
+                    folder = os.path.dirname(path)
+                    if folder:
+                        os.makedirs(folder, exist_ok=True)
+                    save_image(image, path, metadata={"warprt_spp": result.spp, "warprt_frame": f})
+                    out.append(path)
+                else:
+                    out.append(image)
+                done.append(f)
             if bar is not None:
                 bar.update(1)
+            if ctrl_c.pressed:
+                raise KeyboardInterrupt
+    except KeyboardInterrupt:
+        raise FramesInterrupted(done, out, cut_short, total=len(frames)) from None
     finally:
         if bar is not None:
             bar.close()

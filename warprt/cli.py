@@ -4,6 +4,8 @@ Exit status: 0 on success, 2 for a bad scene or argument (one line naming the fi
 problem, no traceback), 130 when interrupted (Ctrl-C). A render interrupted after its first pass
 still writes the samples reached: the output line says "interrupted: partial image", and the file
 carries ``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes).
+``render-sequence`` interrupted keeps every frame written so far (each is written as it finishes),
+writes no frame that was cut short, prints which frames are complete and exits 130.
 """
 
 from __future__ import annotations
@@ -100,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--device", help="Warp device")
     q.add_argument("--executor", choices=["local", "thread", "process", "ray"], default="local",
                    help="where frames render (default: local, one after another)")
+    q.add_argument("--jobs", type=_positive_int,
+                   help="frames in flight at once with --executor thread or process (default: the pool's)")
     q.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser
 
@@ -171,7 +175,8 @@ def _render(args: argparse.Namespace) -> int:
 def _render_sequence(args: argparse.Namespace) -> int:
     from .animation import check_frames, frame_path, render_sequence
     from .batch import render_frames
-    from .image import check_output, save_image
+    from .errors import FramesInterrupted
+    from .image import check_output
     from .scene.loader import load_scene
 
     check_output(args.output, create_folders=True)  # the pattern's extension and folder, before rendering
@@ -186,19 +191,16 @@ def _render_sequence(args: argparse.Namespace) -> int:
     if frames:
         check_output(frame_path(args.output, frames[0]), create_folders=True)
     start = time.perf_counter()
-    if args.executor == "local":
-        paths = render_sequence(scene, output=args.output, frames=frames, spp=args.spp, seed=args.seed,
-                                device=args.device, progress=not args.no_progress)
-    else:
-        images = render_frames(scene, frames=frames, spp=args.spp, seed=args.seed, executor=args.executor,
-                               device=args.device)
-        paths = []
-        for f, image in zip(frames, images):
-            path = frame_path(args.output, f)
-            if os.path.dirname(path):
-                os.makedirs(os.path.dirname(path), exist_ok=True)
-            save_image(image, path, metadata={"warprt_frame": f})
-            paths.append(path)
+    try:
+        if args.executor == "local":
+            paths = render_sequence(scene, output=args.output, frames=frames, spp=args.spp, seed=args.seed,
+                                    device=args.device, progress=not args.no_progress)
+        else:
+            paths = render_frames(scene, frames=frames, spp=args.spp, seed=args.seed, executor=args.executor,
+                                  device=args.device, max_workers=args.jobs, output=args.output)
+    except FramesInterrupted as e:  # the finished frames are written; the one(s) cut short are not
+        print(f"{e.summary()}{': ' + ', '.join(e.results) if e.results else ''}")
+        return 130
     total = time.perf_counter() - start
     print(f"{len(paths)} frames ({paths[0]} ... {paths[-1]}) in {total:.2f} s, {total / len(paths):.2f} s per frame")
     return 0

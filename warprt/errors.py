@@ -34,3 +34,29 @@ class SceneError(ValueError):
 
 class RenderError(RuntimeError):
     """Rendering could not be carried out (bad argument, unavailable device, failed output)."""
+
+
+class FramesInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped a sequence of frames (:func:`warprt.animation.render_sequence`,
+    :func:`warprt.batch.render_frames`). Every frame that had finished is kept (written, with an
+    ``output``, as it finished); a frame cut short is neither written nor returned.
+
+    ``frames``: the complete frame numbers, in the order asked for; ``results``: their images (or
+    paths, with ``output``), aligned with ``frames``; ``cut_short``: the frames stopped part way.
+    A subclass of ``KeyboardInterrupt``, so code that does not look for it still stops on Ctrl-C.
+    """
+
+    def __init__(self, frames, results, cut_short=(), total: int | None = None):
+        self.frames = list(frames)
+        self.results = list(results)
+        self.cut_short = sorted(cut_short)
+        self.total = total
+        super().__init__(self.summary())
+
+    def summary(self) -> str:
+        of = f" of {self.total}" if self.total is not None else ""
+        done = ", ".join(map(str, self.frames)) if self.frames else "none"
+        text = f"interrupted: {len(self.frames)}{of} frames complete ({done})"
+        if self.cut_short:
+            text += f"; cut short and not written: {', '.join(map(str, self.cut_short))}"
+        return text

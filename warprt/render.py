@@ -207,14 +207,17 @@ class Renderer:
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
                slices: int | None = None, pass_spp: int | None = None, time_budget: float | None = None,
                target_error: float | None = None, progress: bool | None = None,
-               aovs=None, as_warp: bool = False) -> RenderResult:
+               aovs=None, as_warp: bool = False, stop=None) -> RenderResult:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
         passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
         (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``object_id``, ``material``,
         ``motion``) returned in ``RenderResult.aovs``. With ``as_warp=True`` the image stays on the
         device: ``RenderResult.image`` is a (H, W, 3) float32 ``wp.array`` (DLPack-ready for torch
         or JAX), with no copy to the host. ``slices``: interleaved pixel sets per pass on the CPU
-        (default ``SLICES_PER_WORKER`` per worker); it changes the speed, never the image."""
+        (default ``SLICES_PER_WORKER`` per worker); it changes the speed, never the image. ``stop``: an
+        event (anything with ``is_set()``, e.g. ``threading.Event``) read after each pass like Ctrl-C:
+        once set, the render returns what it has, marked ``interrupted`` (how a Ctrl-C reaches
+        renders in worker threads and processes, where no SIGINT handler can be installed)."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
@@ -315,7 +318,7 @@ class Renderer:
                     elapsed = _time.perf_counter() - start
                     if bar is not None:
                         bar.update(size)
-                    if ctrl_c.pressed:
+                    if ctrl_c.pressed or (stop is not None and stop.is_set()):
                         interrupted = True
                     if interrupted or (time_budget is not None and elapsed >= time_budget):
                         break
