@@ -488,3 +488,35 @@ def test_render_frames_interrupted_raises_with_the_finished_frames(tmp_path, mon
     assert e.frames == [0] and e.results == [str(tmp_path / "f_0.png")] and e.cut_short == [1]
     assert "1 of 3 frames complete (0)" in str(e) and "cut short and not written: 1" in str(e)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0.png"] and len(calls) == 2
+
+
+# --- an unusable kernel cache folder ---------------------------------------------------------------------
+
+
+def _with_cache(path, args, cwd, module=True):
+    env = dict(os.environ)
+    env["WARP_CACHE_PATH"] = str(path)
+    env.pop("WARPRT_CACHE_DIR", None)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    argv = [sys.executable, "-m", "warprt", *args] if module else [sys.executable, "-c", *args]
+    return subprocess.run(argv, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_an_unusable_warp_cache_path_exits_2_with_one_line(scene_file, tmp_path):
+    (tmp_path / "a_file").write_text("not a folder")
+    bad = tmp_path / "a_file" / "cache"  # under a regular file (root may write into read-only folders)
+    p = _with_cache(bad, ["render", "scene.toml", "-o", "out.png", "--no-progress"], tmp_path)
+    assert p.returncode == 2, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert str(bad) in lines[0] and "WARP_CACHE_PATH" in lines[0] and "Not a directory" in lines[0]
+    assert not (tmp_path / "out.png").exists()
+
+
+def test_an_unusable_warp_cache_path_is_a_render_error_in_the_python_api(tmp_path):
+    (tmp_path / "a_file").write_text("not a folder")
+    code = ("import warprt\ntry:\n    warprt.render(warprt.scene_from_string('[camera]\\nwidth = 4\\nheight = 4\\n'), spp=1)\n"
+            "except warprt.RenderError as e:\n    print('RenderError:', e)\n")
+    p = _with_cache(tmp_path / "a_file" / "cache", [code], tmp_path, module=False)
+    assert p.returncode == 0 and "Traceback" not in p.stderr, p.stderr
+    assert p.stdout.startswith("RenderError: ") and "WARP_CACHE_PATH" in p.stdout, p.stdout

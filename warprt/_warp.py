@@ -1,7 +1,9 @@
 """Import and initialise Warp once, with warprt's settings.
 
 The kernel cache goes where ``WARP_CACHE_PATH`` (or ``WARPRT_CACHE_DIR``) says; the Makefile points
-it inside the repository (``.cache/warp``) so a fresh clone compiles into a folder it owns.
+it inside the repository (``.cache/warp``) so a fresh clone compiles into a folder it owns. A
+cache folder that cannot be created or written to is a :class:`warprt.RenderError` naming it (the
+CLI prints it in one line and exits 2), raised before anything is built or compiled.
 Backward (adjoint) code is never generated for warprt's own kernels (each is declared with
 ``enable_backward=False``: warprt does not differentiate, and skipping it halves compile time);
 Warp's process-wide settings are left as the host application set them.
@@ -38,11 +40,38 @@ def init() -> None:
         cache = os.environ.get("WARPRT_CACHE_DIR")
         if cache and wp.config.kernel_cache_dir is None:
             wp.config.kernel_cache_dir = cache
-        if wp.config.quiet:
-            _init_without_native_chatter()
-        else:
-            wp.init()
+        try:
+            if wp.config.quiet:
+                _init_without_native_chatter()
+            else:
+                wp.init()
+        except OSError as e:  # Warp creates its kernel cache folder during init
+            raise _cache_error(e.filename or wp.config.kernel_cache_dir or os.environ.get("WARP_CACHE_PATH"),
+                               e) from None
+        _check_cache_writable(wp.config.kernel_cache_dir)
         _ready = True
+
+
+def _cache_error(folder, e: OSError):
+    from .errors import RenderError
+
+    return RenderError(f"Warp's kernel cache folder {os.fspath(folder)!r} cannot be used "
+                       f"({e.strerror or e}); set WARP_CACHE_PATH to a folder you can write to")
+
+
+def _check_cache_writable(folder) -> None:
+    """Kernels are compiled into ``folder``: create a file there now (the only sure test), rather
+    than fail inside Warp's build at the first compile."""
+    import tempfile
+
+    if not folder:
+        return
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".warprt.", suffix=".probe", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise _cache_error(folder, e) from None
 
 
 def _init_without_native_chatter() -> None:
