@@ -132,6 +132,7 @@ def _frame_range(text: str) -> range:
 
 def _render(args: argparse.Namespace) -> int:
     from .image import check_output, save_image
+    from .memory import check_memory
     from .render import Renderer
     from .scene.loader import load_scene
 
@@ -149,6 +150,8 @@ def _render(args: argparse.Namespace) -> int:
         raise e.within(source=args.scene) from None
     start = time.perf_counter()
     renderer = Renderer(scene, device=args.device)
+    check_memory(scene.camera.width, scene.camera.height, args.aovs, [os.path.splitext(o)[1] for o in args.output],
+                 film_on_host=renderer.device.is_cpu)  # before compiling or rendering
     compile_s = renderer.compile()
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
                              progress=not args.no_progress, aovs=args.aovs or None)

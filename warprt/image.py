@@ -38,11 +38,29 @@ def _check_image(image) -> np.ndarray:
     return a.astype(np.float32, copy=False)
 
 
-def linear_to_srgb8(image: np.ndarray) -> np.ndarray:
-    x = np.nan_to_num(np.asarray(image, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
+def _srgb8(x: np.ndarray) -> np.ndarray:
+    x = np.nan_to_num(np.asarray(x, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
     x = np.clip(x, 0.0, 1.0)
     s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
     return np.clip(np.round(s * 255.0), 0, 255).astype(np.uint8)
+
+
+SRGB_CHUNK_PIXELS = 1 << 20  # pixels converted at a time: the float temporaries stay a few MB
+
+
+def linear_to_srgb8(image: np.ndarray, chunk_rows: int | None = None) -> np.ndarray:
+    """Linear float to 8-bit sRGB, in chunks of rows, so the float temporaries never span the whole
+    image (the output is the only full-size allocation); elementwise, so the bytes do not depend
+    on the chunking."""
+    image = np.asarray(image)
+    if image.ndim < 2 or image.shape[0] == 0:
+        return _srgb8(image)
+    row = max(1, int(np.prod(image.shape[1:-1] if image.ndim > 2 else image.shape[1:])))
+    rows = chunk_rows or max(1, SRGB_CHUNK_PIXELS // row)
+    out = np.empty(image.shape, dtype=np.uint8)
+    for r0 in range(0, image.shape[0], rows):
+        out[r0:r0 + rows] = _srgb8(image[r0:r0 + rows])
+    return out
 
 
 def _umask() -> int:

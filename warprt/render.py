@@ -38,6 +38,7 @@ from .camera import camera_data
 from .errors import RenderError
 from .film import Film
 from .integrator import kernels_for
+from .memory import check_memory
 from .records import Features
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
 
@@ -234,6 +235,8 @@ class Renderer:
             raise RenderError(f"pass_spp must be a positive integer, got {pass_spp!r}")
         if isinstance(aovs, str):
             aovs = [aovs]
+        check_memory(self.scene.camera.width, self.scene.camera.height, aovs or (), formats=(),
+                     film_on_host=self.device.is_cpu)  # before anything is allocated or compiled
         aov_maps = compute_aovs(self.built, aovs) if aovs else {}
         workers = default_workers() if workers is None else workers
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
