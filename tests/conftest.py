@@ -1,5 +1,16 @@
 """Shared fixtures. Warp's kernel cache goes under the repository (``.cache/warp``) unless
-WARP_CACHE_PATH says otherwise, so a fresh clone compiles into a folder it owns."""
+WARP_CACHE_PATH says otherwise, so a fresh clone compiles into a folder it owns.
+
+Hypothesis profiles (the property tests in tests/stability/test_properties.py), chosen by the
+environment variable WARPRT_HYPOTHESIS:
+
+* ``quick`` (the default, what ``make test`` and CI run): derandomized, so every run on every
+  machine tries the same examples (a failure reproduces everywhere); 100 examples as the unit
+  that each test scales by its own weight; nothing written to ``.hypothesis/``.
+* ``deep`` (``WARPRT_HYPOTHESIS=deep make test``): 20 times as many examples, fresh random seeds
+  on every run, and ``print_blob=True``, so a failure prints the ``@reproduce_failure`` line that
+  replays it.
+"""
 
 from __future__ import annotations
 
@@ -11,10 +22,22 @@ os.environ.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
 
 import pytest  # noqa: E402
 import warp as wp  # noqa: E402
+from hypothesis import settings as _hyp_settings  # noqa: E402
 
 import warprt  # noqa: E402,F401  (initialises Warp quietly)
 
 SCENES = ROOT / "scenes"
+
+HYPOTHESIS_PROFILES = {
+    "quick": dict(max_examples=100, derandomize=True, database=None, print_blob=False),
+    "deep": dict(max_examples=2000, derandomize=False, database=None, print_blob=True),
+}
+for _name, _kw in HYPOTHESIS_PROFILES.items():
+    _hyp_settings.register_profile(_name, **_kw)
+_profile = os.environ.get("WARPRT_HYPOTHESIS", "quick") or "quick"
+if _profile not in HYPOTHESIS_PROFILES:
+    raise pytest.UsageError(f"WARPRT_HYPOTHESIS={_profile!r}: expected one of {', '.join(HYPOTHESIS_PROFILES)}")
+_hyp_settings.load_profile(_profile)
 
 
 def _devices() -> list[str]:
