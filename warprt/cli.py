@@ -19,14 +19,20 @@ import warnings
 from .errors import RenderError, SceneError
 
 
-def _positive_int(text: str) -> int:
+def _int_in(text: str, lo: int, hi: int | None, expected: str) -> int:
+    """``text`` as an integer in [lo, hi] (hi None: unbounded); otherwise an argparse error that
+    says what was expected and what was given."""
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if v < lo or (hi is not None and v > hi):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {v}")
     return v
+
+
+def _positive_int(text: str) -> int:
+    return _int_in(text, 1, None, "a positive integer")
 
 
 def _spp(text: str) -> int:
@@ -41,23 +47,11 @@ def _spp(text: str) -> int:
 
 
 def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 0 <= v < 1 << 32:
-        raise argparse.ArgumentTypeError(f"expected an integer from 0 to 2^32 - 1 = {(1 << 32) - 1}, got {v}")
-    return v
+    return _int_in(text, 0, (1 << 32) - 1, f"an integer from 0 to 2^32 - 1 = {(1 << 32) - 1}")
 
 
 def _non_negative_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
+    return _int_in(text, 0, None, "an integer >= 0")
 
 
 def _positive_float(text: str) -> float:
