@@ -263,6 +263,7 @@ def test_render_sequence_refuses_negative_frames_and_frames_past_the_end(tmp_pat
     (["--seed", "-1"], ["--seed", "4294967295", "-1"]),
     (["--seed", "4294967296"], ["--seed", "4294967295"]),
     (["--colour", "red"], ["--colour"]),
+    (["--adaptive", "--time-budget", "1"], ["--adaptive", "--time-budget"]),
 ])
 def test_bad_arguments_exit_2_and_write_nothing(scene_file, tmp_path, capsys, args, words):
     out = tmp_path / "out.png"
@@ -520,3 +521,13 @@ def test_an_unusable_warp_cache_path_is_a_render_error_in_the_python_api(tmp_pat
     p = _with_cache(tmp_path / "a_file" / "cache", [code], tmp_path, module=False)
     assert p.returncode == 0 and "Traceback" not in p.stderr, p.stderr
     assert p.stdout.startswith("RenderError: ") and "WARP_CACHE_PATH" in p.stdout, p.stdout
+
+
+def test_adaptive_flag_renders_with_the_budget_as_mean_spp(scene_file, tmp_path, capsys):
+    out = tmp_path / "a.exr"
+    code, stdout, err = run(["render", str(scene_file), "-o", str(out), "--spp", "16", "--adaptive", "--no-progress"],
+                            capsys)
+    assert code == 0, err
+    rgb, header = warprt.read_exr(out)
+    assert np.isfinite(rgb).all() and rgb.mean() > 0
+    assert "16 spp" in stdout

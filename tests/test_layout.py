@@ -104,7 +104,7 @@ def test_kernel_modules_hold_a_fixed_content(device):
     contents = {name: sorted(k.split("__locals__")[-1].split("_")[0] for k in modules[name].kernels)
                 for name in ("warprt_query", "warprt_aov", "warprt_film")}
     assert contents == {"warprt_query": ["camera", "samples", "samples", "trace"], "warprt_aov": ["aov"],
-                        "warprt_film": ["image"]}
+                        "warprt_film": ["counted", "image"]}
 
 
 def test_scene_files_render_bit_identical_to_the_saved_images():

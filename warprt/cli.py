@@ -80,6 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--device", help="Warp device: cpu, cuda, cuda:0 ... (default: cuda when present)")
     r.add_argument("--workers", type=_positive_int, help="CPU worker threads (default: one per core)")
     r.add_argument("--time-budget", type=_positive_float, help="stop after this many seconds of rendering")
+    r.add_argument("--adaptive", action="store_true",
+                   help="adaptive sampling: spp is the mean per pixel, noisy pixels get more (a pilot of spp/4 first)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--aovs", type=_aov_list, default=[],
                    help="extra EXR layers, comma separated: depth,z,normal,albedo,position,object_id,material,motion")
@@ -142,13 +144,15 @@ def _render(args: argparse.Namespace) -> int:
             scene = scene.with_settings(**settings)
     except SceneError as e:
         raise e.within(source=args.scene) from None
+    if args.adaptive and args.time_budget is not None:
+        raise RenderError("--adaptive takes a sample budget (--spp), not --time-budget")
     start = time.perf_counter()
     renderer = Renderer(scene, device=args.device)
     check_memory(scene.camera.width, scene.camera.height, args.aovs, [os.path.splitext(o)[1] for o in args.output],
                  film_on_host=renderer.device.is_cpu)  # before compiling or rendering
     compile_s = renderer.compile()
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
-                             progress=not args.no_progress, aovs=args.aovs or None)
+                             progress=not args.no_progress, aovs=args.aovs or None, adaptive=args.adaptive)
     meta = {"warprt_spp": result.spp, "warprt_seed": args.seed, "warprt_interrupted": int(result.interrupted)}
     if result.interrupted:  # a partial image replaces the output: mark it in the file (PNG text, EXR header)
         meta["warprt:partial"] = "true"

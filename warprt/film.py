@@ -9,11 +9,14 @@ as a (H, W, 3) ``wp.array`` left on the device.
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import warp as wp
 
 from ._warp import build_once
+
+NO_LIMIT = (1 << 31) - 1  # FilmData.limit of a pixel without a sample cap
 
 
 @wp.struct
@@ -22,6 +25,7 @@ class FilmData:
     accum_sq: wp.array(dtype=float)  # Σ luminance²
     rays: wp.array(dtype=int)  # rays traced
     overflow: wp.array(dtype=int)  # rays dropped because the pixel's ray stack was full
+    limit: wp.array(dtype=int)  # samples this pixel takes at most (adaptive sampling; else NO_LIMIT)
 
 
 @wp.func
@@ -41,7 +45,10 @@ def sanitize(c: wp.vec3, clamp: float) -> wp.vec3:
 
 
 @build_once
-def _image_kernel():
+def _image_kernels():
+    """Both image kernels, defined together so that the Warp module ``warprt_film`` always holds
+    the same two (whichever is used first)."""
+
     @wp.kernel(module="warprt_film", enable_backward=False)
     def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
         i = wp.tid()
@@ -52,7 +59,18 @@ def _image_kernel():
         out[y, x, 1] = c[1]
         out[y, x, 2] = c[2]
 
-    return image_kernel
+    @wp.kernel(module="warprt_film", enable_backward=False)
+    def counted_image_kernel(accum: wp.array(dtype=wp.vec3), limit: wp.array(dtype=int), spp: int, width: int,
+                             out: wp.array3d(dtype=float)):
+        i = wp.tid()
+        c = accum[i] * (1.0 / float(wp.min(limit[i], spp)))
+        y = i / width
+        x = i - y * width
+        out[y, x, 0] = c[0]
+        out[y, x, 1] = c[1]
+        out[y, x, 2] = c[2]
+
+    return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel)
 
 
 class Film:
@@ -66,17 +84,33 @@ class Film:
         self.data.accum_sq = wp.zeros(n, dtype=float, device=device)
         self.data.rays = wp.zeros(n, dtype=int, device=device)
         self.data.overflow = wp.zeros(n, dtype=int, device=device)
+        self.data.limit = wp.full(n, NO_LIMIT, dtype=int, device=device)
+        self.counts: np.ndarray | None = None  # per-pixel sample counts (adaptive sampling)
+
+    def set_counts(self, counts: np.ndarray) -> None:
+        """Let pixel i take at most counts[i] samples (adaptive sampling; counts >= 1)."""
+        self.counts = np.ascontiguousarray(counts, dtype=np.int32).reshape(-1)
+        self.data.limit.assign(self.counts)
 
     def image(self, spp: int) -> np.ndarray:
-        """The mean of the samples, (H, W, 3) float32 on the host."""
-        return (self.data.accum.numpy() * np.float32(1.0 / spp)).reshape(self.height, self.width, 3)
+        """The mean of the samples, (H, W, 3) float32 on the host (each pixel over its own count
+        when ``set_counts`` was used, with ``spp`` samples run)."""
+        accum = self.data.accum.numpy()
+        if self.counts is None:
+            return (accum * np.float32(1.0 / spp)).reshape(self.height, self.width, 3)
+        inv = np.float32(1.0) / np.minimum(self.counts, spp).astype(np.float32)  # as the device kernel
+        return (accum * inv[:, None]).reshape(self.height, self.width, 3)
 
     def device_image(self, spp: int) -> "wp.array":
         """The mean of the samples as a (H, W, 3) float32 ``wp.array`` on the film's device (the
         same values as :meth:`image`)."""
         out = wp.zeros((self.height, self.width, 3), dtype=float, device=self.device)
-        wp.launch(_image_kernel(), dim=self.width * self.height, device=self.device,
-                  inputs=[self.data.accum, 1.0 / float(spp), self.width, out])
+        if self.counts is None:
+            wp.launch(_image_kernels().plain, dim=self.width * self.height, device=self.device,
+                      inputs=[self.data.accum, 1.0 / float(spp), self.width, out])
+        else:
+            wp.launch(_image_kernels().counted, dim=self.width * self.height, device=self.device,
+                      inputs=[self.data.accum, self.data.limit, int(spp), self.width, out])
         return out
 
     def rays(self) -> int:
@@ -94,3 +128,33 @@ class Film:
         var = np.maximum(self.data.accum_sq.numpy().astype(np.float64) / n - y * y, 0.0) * n / max(n - 1, 1)
         mean = float(y.mean())
         return math.sqrt(float(var.mean()) / n) / mean if mean > 0 else 0.0
+
+
+ADAPTIVE_MIN_SHARE = 2  # adaptive sampling gives every pixel at least spp / 2 samples (and at least 1)
+ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass costs every pixel a little)
+
+
+def adaptive_counts(pilot: Film, n0: int, spp: int) -> np.ndarray:
+    """Per-pixel sample counts averaging ``spp``, from a pilot film of ``n0`` samples per pixel.
+
+    Each pixel gets at least spp / ADAPTIVE_MIN_SHARE samples; the rest of the budget goes in
+    proportion to the pixel's standard deviation (of luminance, from the pilot), which minimises
+    the summed variance Σ σ²/N of the pixel means for a given total (Neyman allocation). The
+    deviations are first raised to the largest of each pixel's 3 × 3 neighbourhood, so that an
+    edge or penumbra that the few pilot samples missed in one pixel is caught from its
+    neighbours. Counts stop at ADAPTIVE_MAX_FACTOR × spp."""
+    h, w = pilot.height, pilot.width
+    n = float(n0)
+    rgb = pilot.data.accum.numpy().astype(np.float64) / n
+    y = 0.2126 * rgb[:, 0] + 0.7152 * rgb[:, 1] + 0.0722 * rgb[:, 2]
+    var = np.maximum(pilot.data.accum_sq.numpy().astype(np.float64) / n - y * y, 0.0) * n / max(n - 1.0, 1.0)
+    sd = np.sqrt(var).reshape(h, w)
+    pad = np.pad(sd, 1, mode="edge")
+    sd = np.max([pad[a:a + h, b:b + w] for a in range(3) for b in range(3)], axis=0).reshape(-1)
+    n_min = max(1, spp // ADAPTIVE_MIN_SHARE)
+    total = float(sd.sum())
+    if not (total > 0.0) or not math.isfinite(total):
+        return np.full(h * w, spp, dtype=np.int32)
+    rest = float(spp - n_min) * sd.size
+    counts = np.rint(n_min + rest * sd / total)
+    return np.clip(counts, n_min, ADAPTIVE_MAX_FACTOR * spp).astype(np.int32)

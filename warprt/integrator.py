@@ -84,7 +84,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
         dropped = int(0)
         stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
-        for s in range(s0, s1):
+        for s in range(s0, wp.min(s1, film.limit[pixel])):  # (the limit: adaptive sampling's count)
             # --- camera sample: film, lens, time
             uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
             time = cam.t_open

@@ -36,7 +36,7 @@ from .aov import compute_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
 from .errors import RenderError
-from .film import Film
+from .film import Film, adaptive_counts
 from .integrator import kernels_for
 from .memory import check_memory
 from .records import Features
@@ -82,6 +82,13 @@ def default_workers() -> int:
 
 
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
+ADAPTIVE_MIN_SPP = 8  # below this budget adaptive sampling renders uniformly (too few samples to share)
+ADAPTIVE_PILOT_FRACTION = 4  # the pilot takes spp / 4 samples per pixel (at least 2)
+
+
+def pilot_seed(seed: int) -> int:
+    """The seed of adaptive sampling's pilot: other noise than the image's own samples."""
+    return (seed * 0x9E3779B1 + 0x7F4A7C15) & 0xFFFFFFFF
 SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
 
 
@@ -208,7 +215,7 @@ class Renderer:
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
                slices: int | None = None, pass_spp: int | None = None, time_budget: float | None = None,
                target_error: float | None = None, progress: bool | None = None,
-               aovs=None, as_warp: bool = False, stop=None) -> RenderResult:
+               aovs=None, as_warp: bool = False, stop=None, adaptive: bool = False) -> RenderResult:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
         passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
         (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``object_id``, ``material``,
@@ -218,7 +225,13 @@ class Renderer:
         (default ``SLICES_PER_WORKER`` per worker); it changes the speed, never the image. ``stop``: an
         event (anything with ``is_set()``, e.g. ``threading.Event``) read after each pass like Ctrl-C:
         once set, the render returns what it has, marked ``interrupted`` (how a Ctrl-C reaches
-        renders in worker threads and processes, where no SIGINT handler can be installed)."""
+        renders in worker threads and processes, where no SIGINT handler can be installed).
+        ``adaptive=True``: adaptive sampling. A pilot of spp/4 samples per pixel (another seed)
+        measures each pixel's noise, and the ``spp × pixels`` budget is shared out in proportion to
+        it (every pixel at least spp/2, at most 8 × spp; ``film.adaptive_counts``); the image is
+        made of those samples only, so it stays unbiased. ``RenderResult.spp`` is then the mean
+        count. Below 8 spp it renders uniformly; it does not combine with ``time_budget`` or
+        ``target_error``."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
@@ -242,27 +255,79 @@ class Renderer:
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
             raise RenderError(f"workers must be a positive integer, got {workers!r}")
 
+        if adaptive and (time_budget is not None or target_error is not None):
+            raise RenderError("adaptive sampling takes a sample budget (spp), not time_budget or target_error")
+
         cam = self.scene.camera
         width, height, dev = cam.width, cam.height, self.device
         film = Film(width, height, dev)
-        params = render_params(self.scene, int(spp), int(seed), self.built.features)
         if self._loaded is not self.kernel:
             self.compile()
             self._loaded = self.kernel
-
         n_slices = (SLICES_PER_WORKER * workers if slices is None else int(slices)) if dev.is_cpu else 1
+        run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop)
+
+        show = (sys.stderr.isatty() if progress is None else progress)
+        bar = None
+        if show:
+            from tqdm import tqdm
+
+            bar = tqdm(total=int(spp), unit="spp", desc="render", delay=0.5, leave=False, file=sys.stderr)
+        ctrl_c = _CtrlC()
+        start = _time.perf_counter()
+        try:
+            with ctrl_c:
+                planned = int(spp)
+                interrupted = False
+                if adaptive and spp >= ADAPTIVE_MIN_SPP:
+                    # a pilot of independent samples (another seed) decides each pixel's count; the
+                    # image is made of the main samples only, so the counts cannot bias it
+                    pilot = Film(width, height, dev)
+                    n0 = max(2, int(spp) // ADAPTIVE_PILOT_FRACTION)
+                    pilot_params = render_params(self.scene, n0, pilot_seed(int(seed)), self.built.features)
+                    done, interrupted, _ = self._passes(pilot, pilot_params, n0, ctrl_c, None, None, None, **run)
+                    if interrupted:
+                        film = pilot  # stopped during the pilot: its samples are the image
+                    else:
+                        counts = adaptive_counts(pilot, done, int(spp))
+                        film.set_counts(counts)
+                        planned = int(counts.max())
+                rel_err = None
+                if not interrupted:
+                    params = render_params(self.scene, planned, int(seed), self.built.features)
+                    done, interrupted, rel_err = self._passes(film, params, planned, ctrl_c, bar, time_budget,
+                                                              target_error, **run)
+        finally:
+            if bar is not None:
+                bar.close()
+        wall = _time.perf_counter() - start
+        if target_error is not None and rel_err is None and done >= 2:
+            rel_err = film.relative_error(done)
+        image = film.device_image(done) if as_warp else film.image(done)
+        # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
+        spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
+        return RenderResult(image=image, spp=spp_done, wall_time=wall, rays=film.rays(),
+                            stack_overflows=film.overflows(), features=self.features,
+                            device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
+
+    def _passes(self, film: Film, params, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error, *,
+                workers: int, n_slices: int, pass_spp, stop) -> tuple[int, bool, float | None]:
+        """Run passes of samples [0, spp) into ``film`` (stopping early for Ctrl-C, ``stop``,
+        ``time_budget`` or ``target_error``): (samples run, interrupted, relative error or None)."""
+        cam = self.scene.camera
+        dev = self.device
         # one recorded launch per slice, replayed every pass with the pass's sample range
         launches = [wp.launch(self.kernel, dim=count, device=dev, record_cmd=True,
                               inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0, film.data])
-                    for first, stride, count in _slices(width, height, n_slices)]
-        pool = self._workers(int(workers))
+                    for first, stride, count in _slices(cam.width, cam.height, n_slices)]
+        pool = self._workers(workers)
 
         def run_pass(s0: int, s1: int) -> None:
             """Run samples [s0, s1) on every slice, from the worker threads (also with one worker,
             so that a Ctrl-C reaching the main thread never splits a launch). A KeyboardInterrupt
             (only raised here when the SIGINT handler could not be installed, see _CtrlC) is held
             until the pass is complete, so every pixel holds the same number of samples."""
-            stop = False
+            stop_now = False
             next_slice = iter(launches)
             lock = threading.Lock()
             errors: list[BaseException] = []
@@ -290,55 +355,36 @@ class Renderer:
                     except FuturesTimeout:
                         continue
                     except KeyboardInterrupt:
-                        stop = True
+                        stop_now = True
             if errors:
                 raise errors[0]
-            if stop:
+            if stop_now:
                 raise KeyboardInterrupt
-
-        show = (sys.stderr.isatty() if progress is None else progress)
-        bar = None
-        if show:
-            from tqdm import tqdm
-
-            bar = tqdm(total=int(spp), unit="spp", desc="render", delay=0.5, leave=False, file=sys.stderr)
 
         done, interrupted, rel_err = 0, False, None
         elapsed = 0.0
-        ctrl_c = _CtrlC()
         start = _time.perf_counter()
-        try:
-            with ctrl_c:
-                while done < spp:
-                    size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
-                    size = min(size, spp - done)
-                    try:
-                        run_pass(done, done + size)
-                    except KeyboardInterrupt:
-                        interrupted = True
-                    wp.synchronize_device(dev)
-                    done += size
-                    elapsed = _time.perf_counter() - start
-                    if bar is not None:
-                        bar.update(size)
-                    if ctrl_c.pressed or (stop is not None and stop.is_set()):
-                        interrupted = True
-                    if interrupted or (time_budget is not None and elapsed >= time_budget):
-                        break
-                    if target_error is not None and done >= 2:
-                        rel_err = film.relative_error(done)
-                        if rel_err <= target_error:
-                            break
-        finally:
+        while done < spp:
+            size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
+            size = min(size, spp - done)
+            try:
+                run_pass(done, done + size)
+            except KeyboardInterrupt:
+                interrupted = True
+            wp.synchronize_device(dev)
+            done += size
+            elapsed = _time.perf_counter() - start
             if bar is not None:
-                bar.close()
-        wall = _time.perf_counter() - start
-        if target_error is not None and rel_err is None and done >= 2:
-            rel_err = film.relative_error(done)
-        image = film.device_image(done) if as_warp else film.image(done)
-        return RenderResult(image=image, spp=done, wall_time=wall, rays=film.rays(),
-                            stack_overflows=film.overflows(), features=self.features,
-                            device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
+                bar.update(size)
+            if ctrl_c.pressed or (stop is not None and stop.is_set()):
+                interrupted = True
+            if interrupted or (time_budget is not None and elapsed >= time_budget):
+                break
+            if target_error is not None and done >= 2:
+                rel_err = film.relative_error(done)
+                if rel_err <= target_error:
+                    break
+        return done, interrupted, rel_err
 
     @staticmethod
     def _next_pass(done: int, elapsed: float, pass_spp: int | None, time_budget: float | None) -> int:
