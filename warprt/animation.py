@@ -131,18 +131,23 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
 
         bar = tqdm(total=len(frames), unit="frame", desc="sequence", file=sys.stderr)
     try:
-        for f in frames:
-            fs = frame_scene(scene, f)
-            if renderer is None:
-                renderer = Renderer(fs, device=device)
-            else:
-                renderer.update(fs)
-            result = renderer.render(spp=spp, seed=frame_seed(seed, f), progress=False, aovs=aovs)
-            if result.interrupted:
-                cut_short.append(f)
-                raise KeyboardInterrupt
-            image = {"color": result.image, **result.aovs} if aovs else result.image
-            with _CtrlC() as ctrl_c:  # a Ctrl-C now lets the frame be written (and counted) first
+        # one flag-only SIGINT handler over the whole loop (see render._CtrlC): a Ctrl-C between
+        # frames, while a scene is updated or a frame written, only sets the flag; the render
+        # reads it after each pass (``stop``) and the loop after each frame
+        with _CtrlC() as ctrl_c:
+            for f in frames:
+                if ctrl_c.pressed:
+                    raise KeyboardInterrupt
+                fs = frame_scene(scene, f)
+                if renderer is None:
+                    renderer = Renderer(fs, device=device)
+                else:
+                    renderer.update(fs)
+                result = renderer.render(spp=spp, seed=frame_seed(seed, f), progress=False, aovs=aovs, stop=ctrl_c)
+                if result.interrupted:
+                    cut_short.append(f)
+                    raise KeyboardInterrupt
+                image = {"color": result.image, **result.aovs} if aovs else result.image
                 if output is not None:
                     path = frame_path(output, f)
                     folder = os.path.dirname(path)
@@ -153,10 +158,8 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
                 else:
                     out.append(image)
                 done.append(f)
-            if bar is not None:
-                bar.update(1)
-            if ctrl_c.pressed:
-                raise KeyboardInterrupt
+                if bar is not None:
+                    bar.update(1)
     except KeyboardInterrupt:
         raise FramesInterrupted(done, out, cut_short, total=len(frames)) from None
     finally:

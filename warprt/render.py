@@ -112,6 +112,10 @@ class _CtrlC:
     def _handler(self, signum, frame):
         self.pressed = True
 
+    def is_set(self) -> bool:
+        """Ctrl-C seen (so that the block can be handed to ``Renderer.render(stop=...)``)."""
+        return self.pressed
+
     def __enter__(self):
         import signal
 
