@@ -102,6 +102,19 @@ def check_frames(scene: Scene, frames=None, name: str = "frames") -> list[int]:
     return [int(f) for f in frames]
 
 
+def keep_frame(output: str | None, frame: int, image, spp: int):
+    """A finished frame: the image itself, or with ``output`` the path it was written to
+    (atomically, its folder created, with its spp and frame number in the metadata)."""
+    if output is None:
+        return image
+    path = frame_path(output, frame)
+    folder = os.path.dirname(path)
+    if folder:
+        os.makedirs(folder, exist_ok=True)
+    save_image(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
+    return path
+
+
 def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: int | None = None, seed: int = 0,
                     device: str | None = None, progress: bool | None = None, aovs=None) -> list:
     """Render frames of an animated scene in this process, reusing one Renderer.
@@ -148,15 +161,7 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
                     cut_short.append(f)
                     raise KeyboardInterrupt
                 image = {"color": result.image, **result.aovs} if aovs else result.image
-                if output is not None:
-                    path = frame_path(output, f)
-                    folder = os.path.dirname(path)
-                    if folder:
-                        os.makedirs(folder, exist_ok=True)
-                    save_image(image, path, metadata={"warprt_spp": result.spp, "warprt_frame": f})
-                    out.append(path)
-                else:
-                    out.append(image)
+                out.append(keep_frame(output, f, image, result.spp))
                 done.append(f)
                 if bar is not None:
                     bar.update(1)

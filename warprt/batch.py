@@ -29,11 +29,9 @@ import os
 import threading
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 
-import numpy as np
-
-from .animation import check_frames, frame_path, frame_scene, frame_seed, render_sequence
+from .animation import check_frames, frame_path, frame_scene, frame_seed, keep_frame, render_sequence
 from .errors import FramesInterrupted, RenderError
-from .image import check_output, save_image
+from .image import check_output
 from .render import Renderer, _CtrlC, check_seed
 from .scene.description import Scene
 
@@ -85,13 +83,13 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
         raise RenderError(f"render_frames() needs a warprt.Scene, got {type(scene).__name__}")
     if executor not in EXECUTORS:
         raise RenderError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if executor == "local":  # (it checks the frames, the seed and the output itself)
+        return render_sequence(scene, output=output, frames=frames, spp=spp, seed=seed, device=device,
+                               progress=False)
     frames = check_frames(scene, frames)
     check_seed(seed)
     if output is not None:
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
-    if executor == "local":
-        return render_sequence(scene, output=output, frames=frames, spp=spp, seed=seed, device=device,
-                               progress=False)
     if executor == "ray":
         if not ray_available():
             raise RenderError("executor='ray' needs Ray: pip install 'warprt[ray]'")
@@ -103,7 +101,7 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
         task = ray.remote(_render_frame).options(runtime_env={"env_vars": env} if env else None)
         scene_ref = ray.put(scene)
         rendered = ray.get([task.remote(scene_ref, f, spp, seed, device, render_workers) for f in frames])
-        return [_keep(output, f, image, n) for f, (image, n, _) in zip(frames, rendered)]
+        return [keep_frame(output, f, image, n) for f, (image, n, _) in zip(frames, rendered)]
     if executor == "thread":
         stop = threading.Event()
         pool = ThreadPoolExecutor(max_workers=max_workers)
@@ -121,7 +119,7 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
             cut_short.append(f)
             return
         with _CtrlC() as ctrl_c:  # a Ctrl-C while writing lets the frame be written (and kept) first
-            kept[f] = _keep(output, f, image, n)
+            kept[f] = keep_frame(output, f, image, n)
         if ctrl_c.pressed:
             raise KeyboardInterrupt
 
@@ -148,14 +146,3 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
         stop.set()  # on an error too: no frame keeps rendering for nothing
         pool.shutdown(wait=True, cancel_futures=True)
     return [kept[f] for f in frames]
-
-
-def _keep(output: str | None, frame: int, image: np.ndarray, spp: int):
-    """The image, or with ``output`` the path it was written to (atomically)."""
-    if output is None:
-        return image
-    path = frame_path(output, frame)
-    if os.path.dirname(path):
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-    save_image(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
-    return path

@@ -174,7 +174,7 @@ def _render(args: argparse.Namespace) -> int:
 
 
 def _render_sequence(args: argparse.Namespace) -> int:
-    from .animation import check_frames, frame_path, render_sequence
+    from .animation import check_frames, render_sequence
     from .batch import render_frames
     from .errors import FramesInterrupted
     from .image import check_output
@@ -188,9 +188,7 @@ def _render_sequence(args: argparse.Namespace) -> int:
             scene = scene.with_camera(**cam)
         except SceneError as e:
             raise e.within(source=args.scene) from None
-    frames = check_frames(scene, args.frames, name=f"{args.scene}: --frames")
-    if frames:
-        check_output(frame_path(args.output, frames[0]), create_folders=True)
+    frames = check_frames(scene, args.frames, name=f"{args.scene}: --frames")  # (named after the file)
     start = time.perf_counter()
     try:
         if args.executor == "local":

@@ -119,15 +119,21 @@ class Film:
     def overflows(self) -> int:
         return int(self.data.overflow.numpy().sum(dtype=np.int64))
 
-    def relative_error(self, spp: int) -> float:
-        """RMS over pixels of the standard error of each pixel's mean luminance, over the mean
-        luminance (from ``spp`` samples per pixel)."""
+    def luminance_stats(self, spp: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per pixel, from ``spp`` samples each: the mean luminance and the (unbiased) sample
+        variance of the luminance, float64."""
         n = spp
         rgb = self.data.accum.numpy().astype(np.float64) / n
         y = 0.2126 * rgb[:, 0] + 0.7152 * rgb[:, 1] + 0.0722 * rgb[:, 2]
         var = np.maximum(self.data.accum_sq.numpy().astype(np.float64) / n - y * y, 0.0) * n / max(n - 1, 1)
+        return y, var
+
+    def relative_error(self, spp: int) -> float:
+        """RMS over pixels of the standard error of each pixel's mean luminance, over the mean
+        luminance (from ``spp`` samples per pixel)."""
+        y, var = self.luminance_stats(spp)
         mean = float(y.mean())
-        return math.sqrt(float(var.mean()) / n) / mean if mean > 0 else 0.0
+        return math.sqrt(float(var.mean()) / spp) / mean if mean > 0 else 0.0
 
 
 ADAPTIVE_MIN_SHARE = 2  # adaptive sampling gives every pixel at least spp / 2 samples (and at least 1)
@@ -144,11 +150,7 @@ def adaptive_counts(pilot: Film, n0: int, spp: int) -> np.ndarray:
     edge or penumbra that the few pilot samples missed in one pixel is caught from its
     neighbours. Counts stop at ADAPTIVE_MAX_FACTOR × spp."""
     h, w = pilot.height, pilot.width
-    n = float(n0)
-    rgb = pilot.data.accum.numpy().astype(np.float64) / n
-    y = 0.2126 * rgb[:, 0] + 0.7152 * rgb[:, 1] + 0.0722 * rgb[:, 2]
-    var = np.maximum(pilot.data.accum_sq.numpy().astype(np.float64) / n - y * y, 0.0) * n / max(n - 1.0, 1.0)
-    sd = np.sqrt(var).reshape(h, w)
+    sd = np.sqrt(pilot.luminance_stats(n0)[1]).reshape(h, w)
     pad = np.pad(sd, 1, mode="edge")
     sd = np.max([pad[a:a + h, b:b + w] for a in range(3) for b in range(3)], axis=0).reshape(-1)
     n_min = max(1, spp // ADAPTIVE_MIN_SHARE)

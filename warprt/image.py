@@ -127,8 +127,8 @@ def _pid_alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except (PermissionError, OSError, OverflowError):
-        return True
+    except (OSError, OverflowError):  # another user's process, or not a PID: leave its files alone
+        pass
     return True
 
 

@@ -78,13 +78,16 @@ def kernels_for(F: Features) -> SimpleNamespace:
         if py >= cam.height:
             return
         pixel = py * cam.width + px
+        s_end = wp.min(s1, film.limit[pixel])  # the limit: adaptive sampling's count for this pixel
+        if s_end <= s0:
+            return
         acc = film.accum[pixel]
         acc_sq = film.accum_sq[pixel]
         rays = int(0)
         dropped = int(0)
         stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
-        for s in range(s0, wp.min(s1, film.limit[pixel])):  # (the limit: adaptive sampling's count)
+        for s in range(s0, s_end):
             # --- camera sample: film, lens, time
             uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
             time = cam.t_open

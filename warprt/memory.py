@@ -11,6 +11,7 @@ where that is unknown.
 
 from __future__ import annotations
 
+from .aov import AOVS
 from .errors import RenderError
 
 FILM_BYTES = 24
@@ -18,8 +19,6 @@ IMAGE_BYTES = 12
 PNG_BYTES = 7
 EXR_BYTES = 24
 AOV_CHANNEL_BYTES = 12
-AOV_CHANNELS = {"depth": 1, "z": 1, "normal": 3, "albedo": 3, "position": 3, "object_id": 1, "material": 1,
-                "motion": 2}
 
 
 def estimate_bytes(width: int, height: int, aovs=(), formats=(".png",), film_on_host: bool = True) -> int:
@@ -31,7 +30,7 @@ def estimate_bytes(width: int, height: int, aovs=(), formats=(".png",), film_on_
         per_pixel += PNG_BYTES
     if ".exr" in formats:
         per_pixel += EXR_BYTES
-    per_pixel += sum(AOV_CHANNEL_BYTES * AOV_CHANNELS.get(a, 3) for a in (aovs or ()))
+    per_pixel += sum(AOV_CHANNEL_BYTES * (AOVS[a].channels if a in AOVS else 3) for a in (aovs or ()))
     return int(width) * int(height) * per_pixel
 
 

@@ -84,12 +84,12 @@ def default_workers() -> int:
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 ADAPTIVE_MIN_SPP = 8  # below this budget adaptive sampling renders uniformly (too few samples to share)
 ADAPTIVE_PILOT_FRACTION = 4  # the pilot takes spp / 4 samples per pixel (at least 2)
+SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
 
 
 def pilot_seed(seed: int) -> int:
     """The seed of adaptive sampling's pilot: other noise than the image's own samples."""
     return (seed * 0x9E3779B1 + 0x7F4A7C15) & 0xFFFFFFFF
-SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
 
 
 def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int]]:
@@ -296,6 +296,9 @@ class Renderer:
                         counts = adaptive_counts(pilot, done, int(spp))
                         film.set_counts(counts)
                         planned = int(counts.max())
+                        if bar is not None:
+                            bar.total = planned  # the main passes run to the largest count
+                            bar.refresh()
                 rel_err = None
                 if not interrupted:
                     params = render_params(self.scene, planned, int(seed), self.built.features)

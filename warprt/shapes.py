@@ -216,9 +216,9 @@ def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u_in:
     irradiance estimate then varies only with cosθ at p); a far one, a sheared parallelogram, or
     a solid angle too small to matter: uniform by area. With ``cosine`` != 0 the square is first
     warped so that points come in proportion to a bilinear fit of n·ω (times cosθ'/r² by area)
-    over the corners, the product sampling of pbrt-v4's lights: a point in full view then
-    contributes nearly the same whatever the sample, and low-discrepancy samples keep their
-    stratification in penumbrae. Every estimator is unbiased (the density never vanishes where
+    through 3 × 3 knots (``rect_cosine_weights``; pbrt-v4's lights fit the corners alone): a
+    point in full view then contributes nearly the same whatever the sample, and low-discrepancy
+    samples keep their stratification in penumbrae. Every estimator is unbiased (the density never vanishes where
     n·ω > 0)."""
     mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
     if not (wp.dot(rec.n, p - rec.c) > 0.0):
