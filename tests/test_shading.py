@@ -197,6 +197,44 @@ def test_shadow_of_an_opaque_sphere_is_exactly_ambient():
     assert_close(img.reshape(40, 40, 3), ref_b, ball)
 
 
+def test_directional_light_shades_and_shadows_with_the_closed_form():
+    """A directional light: l = -direction everywhere, no falloff, shadow rays to infinity (a
+    sphere far above the light's reach of a point light still shadows)."""
+    ka, ia = np.float32(0.5), np.float32(0.2)
+    kd_floor, kd_ball, ks_ball, p_ball = np.array([0.6, 0.5, 0.4]), np.array([0.3, 0.5, 0.7]), 0.4, 20.0
+    c, radius = np.array([0.0, 1.0, 0.0]), 0.5
+    direction, intensity = unit([0.4, -1.0, -0.3]), np.array([0.9, 1.0, 1.1])
+    scene = warprt.Scene(
+        camera=warprt.Camera(eye=(0.0, 4.0, 4.0), look_at=(0, 0, 0), fov=45, width=40, height=40),
+        shapes=(warprt.Plane(point=(0, 0, 0), normal=(0, 1, 0), material="floor"),
+                warprt.Sphere(center=tuple(c), radius=radius, material="ball")),
+        materials={"floor": warprt.Material(kd=tuple(kd_floor), ka=float(ka)),
+                   "ball": warprt.Material(kd=tuple(kd_ball), ks=ks_ball, p=p_ball)},
+        lights=(warprt.DirectionalLight(direction=tuple(3.0 * direction), intensity=tuple(intensity)),),
+        ambient=float(ia), render=REGULAR)
+    img = render(scene).reshape(-1, 3)
+    o, d = rays(scene)
+    t_ball, m_ball = sphere_hit(o, d, c, radius)
+    t_floor = plane_hit(o, d, (0, 0, 0), (0, 1, 0))
+    floor = np.isfinite(t_floor) & (t_floor < t_ball) & (m_ball > 1e-3)
+    p = o + np.where(floor, t_floor, 0)[:, None] * d
+    l = -direction
+    far = p + 1e6 * l  # a point light this far along l gives the same directions to float64 precision
+    t_sh, m_sh = sphere_hit(p, np.broadcast_to(l, p.shape), c, radius)
+    shadowed = floor & np.isfinite(t_sh) & (m_sh > 1e-3)
+    lit = floor & ~np.isfinite(t_sh) & (m_sh > 1e-3)
+    assert shadowed.sum() > 30 and lit.sum() > 500
+    assert np.all(img[shadowed] == np.float32(ka * ia)), np.unique(img[shadowed])
+    ref = ka * ia + np.asarray(intensity) * kd_floor * max(l[1], 0.0)
+    assert_close(img.reshape(40, 40, 3), np.broadcast_to(ref, (1600, 3)).reshape(40, 40, 3), lit)
+    ball = np.isfinite(t_ball) & (t_ball < t_floor) & (m_ball > 1e-3)
+    pb = o + np.where(ball, t_ball, 0)[:, None] * d
+    ref_b = kd_ball * ia + blinn_phong_ref(pb, (pb - c) / radius, -d, pb + 1e6 * l, intensity, kd_ball, ks_ball,
+                                           p_ball)
+    assert_close(img.reshape(40, 40, 3), ref_b, ball, rtol=2e-4)
+    assert np.isfinite(far).all()
+
+
 def lit_plane(scale, shift):
     """A plane lit at a grazing angle, scaled and moved: (image, closed form, ka Ia), per pixel.
     With falloff "none" the radiance does not depend on the scene's scale or position."""

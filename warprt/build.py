@@ -22,12 +22,12 @@ from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
 from .records import (
-    FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
+    FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
     features_of, table,
 )
 from .sampling import SAMPLER_IDS
 from .scene.description import (
-    EXTENT_WARNING, LIGHT_SAMPLING, Material, Mesh, PointLight, Scene, is_area_light, scene_extent,
+    EXTENT_WARNING, LIGHT_SAMPLING, DirectionalLight, Material, Mesh, PointLight, Scene, is_area_light, scene_extent,
 )
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
@@ -115,7 +115,9 @@ class DeviceScene:
             rows[kind.table].append(kind.row(surface, len(mats) - 1))
         self.normal_offsets = dict(zip(asset_ids, nrm_offsets))
         self.area_lights = alights  # (kind, row in its shape table, radiance, samples) of each area light
-        plights = [light for light in scene.lights if isinstance(light, PointLight)]
+        # point and directional lights share one table: a directional light's ``pos`` is the unit
+        # vector towards it and ``inv_sq`` is FALLOFF_DIRECTIONAL
+        plights = [light for light in scene.lights if isinstance(light, (PointLight, DirectionalLight))]
 
         # --- copy to the device
         d = SceneData()
@@ -130,8 +132,7 @@ class DeviceScene:
                                      fresnel=FRESNEL_IDS[m.fresnel], gloss=m.glossy_exponent,
                                      frost=m.frosted_exponent, emit=le) for m, le in mats], dev)
         d.n_plights = len(plights)
-        d.plights = table(PointLightRec, [dict(pos=l.position, intensity=l.intensity,
-                                               inv_sq=int(l.falloff == "inverse_square")) for l in plights], dev)
+        d.plights = table(PointLightRec, [point_light_row(l) for l in plights], dev)
         d.n_alights = len(alights)
         d.alights = table(AreaLightRec, alights, dev)
         d.ambient = wp.vec3(*scene.ambient)
@@ -171,6 +172,7 @@ class DeviceScene:
                  for j, row in enumerate(rows[kind.table])]
         self.analytic_bvh = None
         d.bvh = wp.uint64(0)
+        d.bvh_root = -1
         d.bvh_prims = wp.zeros(1, dtype=wp.vec2i, device=dev)
         if len(prims) < ANALYTIC_BVH_MIN:
             return
@@ -189,6 +191,13 @@ class DeviceScene:
         d.bvh = wp.uint64(self.analytic_bvh.id)
         d.bvh_prims = wp.array(np.array([(kind.tag, j) for kind, j, _ in prims], dtype=np.int32), dtype=wp.vec2i,
                                device=dev)
+
+
+def point_light_row(light) -> dict:
+    """The PointLightRec fields of a point or directional light."""
+    if isinstance(light, DirectionalLight):
+        return dict(pos=tuple(-x for x in light.direction), intensity=light.intensity, inv_sq=FALLOFF_DIRECTIONAL)
+    return dict(pos=light.position, intensity=light.intensity, inv_sq=int(light.falloff == "inverse_square"))
 
 
 def render_params(scene: Scene, spp: int, seed: int, features: Features | None = None) -> RenderParams:

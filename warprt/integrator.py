@@ -68,16 +68,11 @@ def kernels_for(F: Features) -> SimpleNamespace:
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
 
-    @wp.kernel(module="unique", enable_backward=False)
-    def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
-                      row0: int, stride: int, s0: int, s1: int, film: FilmData):
-        # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame)
-        tid = wp.tid()
-        px = tid % cam.width
-        py = row0 + (tid / cam.width) * stride
-        if py >= cam.height:
-            return
-        pixel = py * cam.width + px
+    @wp.func(inline=True)
+    def render_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
+                     s0: int, s1: int, film: FilmData):
+        """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``
+        (also the pixel's noise key: unique over everything one film holds)."""
         s_end = wp.min(s1, film.limit[pixel])  # the limit: adaptive sampling's count for this pixel
         if s_end <= s0:
             return
@@ -224,4 +219,15 @@ def kernels_for(F: Features) -> SimpleNamespace:
         film.rays[pixel] = film.rays[pixel] + rays
         film.overflow[pixel] = film.overflow[pixel] + dropped
 
-    return SimpleNamespace(render=render_kernel, trace=trace)
+    @wp.kernel(module="unique", enable_backward=False)
+    def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
+                      row0: int, stride: int, s0: int, s1: int, film: FilmData):
+        # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame)
+        tid = wp.tid()
+        px = tid % cam.width
+        py = row0 + (tid / cam.width) * stride
+        if py >= cam.height:
+            return
+        render_pixel(scene, cam, params, px, py, py * cam.width + px, s0, s1, film)
+
+    return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)

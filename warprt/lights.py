@@ -1,4 +1,4 @@
-"""Direct light at a shading point: point lights (one shadow ray each) and area lights
+"""Direct light at a shading point: point and directional lights (one shadow ray each) and area lights
 (stratified samples of their emitting shapes, each with a shadow ray).
 
 Directions, distances and densities are taken from the surface point p; shadow rays start from
@@ -16,7 +16,7 @@ import warp as wp
 
 from ._warp import build_once
 from .geometry import max_abs, spawn_offset
-from .records import Features, RenderParams, SceneData
+from .records import FALLOFF_DIRECTIONAL, Features, RenderParams, SceneData
 from .sampling import hash2, sample_2d_keyed
 from .shading import blinn_phong, mul_sat
 from .shapes import sample_emitter
@@ -29,6 +29,7 @@ LIGHT_DIM_BASE = 16  # dimension keys of area light j: hash2(path key, LIGHT_DIM
 def make_lights(F: Features) -> SimpleNamespace:
     """The direct-lighting device functions for one feature set (built once per process)."""
     shadow = make_trace(F).shadow
+    transmittance = make_trace(F).transmittance
 
     @wp.func
     def area_lights_direct(scene: SceneData, params: RenderParams, pkey: wp.uint32, sample: int, key: wp.uint32,
@@ -71,22 +72,42 @@ def make_lights(F: Features) -> SimpleNamespace:
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for i in range(scene.n_plights):
-            to_light = scene.plights[i].pos - p  # shading uses the surface point itself
-            dist = wp.length(to_light)
-            if dist <= 0.0:
-                continue
-            l = to_light / dist
+            directional = scene.plights[i].inv_sq == FALLOFF_DIRECTIONAL
+            l = scene.plights[i].pos  # a directional light: the unit vector towards it
+            dist = float(0.0)
+            if not directional:
+                to_light = scene.plights[i].pos - p  # shading uses the surface point itself
+                dist = wp.length(to_light)
+                if dist <= 0.0:
+                    continue
+                l = to_light / dist
             if wp.dot(ng, l) <= 0.0:
                 continue
             f = blinn_phong(n, l, v, kd, ks, p_exp)
             if wp.max(f) <= 0.0:
                 continue
             rays += 1
-            T = shadow(scene, origin, scene.plights[i].pos, spawn_offset(max_abs(scene.plights[i].pos)), time)
+            # the shadow ray: to infinity towards a directional light; else to the light, ending
+            # short of it (as ``shadow`` does; one transmittance call keeps the loop small)
+            d_sh = l
+            t_sh = float(3.0e38)
+            T = wp.vec3(1.0, 1.0, 1.0)
+            blocked_test = True
+            if not directional:
+                to_t = scene.plights[i].pos - origin
+                dist_o = wp.length(to_t)
+                stop_short = spawn_offset(max_abs(scene.plights[i].pos))
+                if dist_o <= stop_short:
+                    blocked_test = False
+                else:
+                    d_sh = to_t / dist_o
+                    t_sh = dist_o - stop_short
+            if blocked_test:
+                T = transmittance(scene, origin, d_sh, t_sh, time)
             if wp.max(T) <= 0.0:
                 continue
             I = scene.plights[i].intensity
-            if scene.plights[i].inv_sq != 0:
+            if scene.plights[i].inv_sq == 1:
                 I = I / (dist * dist)
             L += mul_sat(T, mul_sat(I, f))
         return wp.vec4(L[0], L[1], L[2], float(rays))

@@ -16,6 +16,7 @@ from .scene.description import Material, Mesh, Scene, Sphere, is_area_light
 
 # shape kinds, as reported by ray queries and id AOVs, and as area lights name their surface
 KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
+FALLOFF_DIRECTIONAL = 2  # PointLightRec.inv_sq of a directional light (0: none, 1: inverse square)
 FRESNEL_IDS = {"none": 0, "schlick": 1, "exact": 2}
 
 
@@ -147,7 +148,7 @@ class MatRec:
 class PointLightRec:
     pos: wp.vec3
     intensity: wp.vec3  # I
-    inv_sq: int  # 1: inverse-square falloff
+    inv_sq: int  # 1: inverse-square falloff; FALLOFF_DIRECTIONAL: a directional light (pos: unit vector towards it)
 
 
 @wp.struct
@@ -166,6 +167,7 @@ class SceneData:
     n_spheres: int
     spheres: wp.array(dtype=SphereRec)
     bvh: wp.uint64  # BVH over the bounded analytic shapes (spheres, rectangles, disks), 0 when they are few
+    bvh_root: int  # the node rays start from: -1 for the whole BVH, a world's group root in a batch
     bvh_prims: wp.array(dtype=wp.vec2i)  # (kind, row) of each BVH primitive
     n_planes: int
     planes: wp.array(dtype=PlaneRec)

@@ -98,6 +98,47 @@ def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int]]:
     return [(j, count, width * ((height - j + count - 1) // count)) for j in range(count)]
 
 
+def run_pass(pool: ThreadPoolExecutor, launches: list, workers: int, s0: int, s1: int) -> None:
+    """Run samples [s0, s1) on every recorded slice launch (whose sample bounds are arguments
+    S0_ARG and S0_ARG + 1), from the pool's worker threads (also with one worker, so that a Ctrl-C
+    reaching the main thread never splits a launch). A KeyboardInterrupt (only raised here when
+    the SIGINT handler could not be installed, see _CtrlC) is held until the pass is complete, so
+    every pixel holds the same number of samples."""
+    stop_now = False
+    next_slice = iter(launches)
+    lock = threading.Lock()
+    errors: list[BaseException] = []
+
+    def work():
+        while True:
+            with lock:
+                cmd = next(next_slice, None)
+            if cmd is None or errors:
+                return
+            try:
+                cmd.set_param_at_index(S0_ARG, s0)
+                cmd.set_param_at_index(S0_ARG + 1, s1)
+                cmd.launch()
+            except BaseException as e:  # surfaced in the caller
+                errors.append(e)
+                return
+
+    futures = [pool.submit(work) for _ in range(min(workers, len(launches)))]
+    for f in futures:
+        while True:
+            try:
+                f.result(timeout=0.1)
+                break
+            except FuturesTimeout:
+                continue
+            except KeyboardInterrupt:
+                stop_now = True
+    if errors:
+        raise errors[0]
+    if stop_now:
+        raise KeyboardInterrupt
+
+
 class _CtrlC:
     """Ctrl-C during the pass loop, race-free: while the block runs, a SIGINT handler that only
     sets ``pressed`` (read by the loop after each pass) replaces Python's default one, so no
@@ -329,45 +370,6 @@ class Renderer:
                     for first, stride, count in _slices(cam.width, cam.height, n_slices)]
         pool = self._workers(workers)
 
-        def run_pass(s0: int, s1: int) -> None:
-            """Run samples [s0, s1) on every slice, from the worker threads (also with one worker,
-            so that a Ctrl-C reaching the main thread never splits a launch). A KeyboardInterrupt
-            (only raised here when the SIGINT handler could not be installed, see _CtrlC) is held
-            until the pass is complete, so every pixel holds the same number of samples."""
-            stop_now = False
-            next_slice = iter(launches)
-            lock = threading.Lock()
-            errors: list[BaseException] = []
-
-            def work():
-                while True:
-                    with lock:
-                        cmd = next(next_slice, None)
-                    if cmd is None or errors:
-                        return
-                    try:
-                        cmd.set_param_at_index(S0_ARG, s0)
-                        cmd.set_param_at_index(S0_ARG + 1, s1)
-                        cmd.launch()
-                    except BaseException as e:  # surfaced in the caller
-                        errors.append(e)
-                        return
-
-            futures = [pool.submit(work) for _ in range(min(workers, len(launches)))]
-            for f in futures:
-                while True:
-                    try:
-                        f.result(timeout=0.1)
-                        break
-                    except FuturesTimeout:
-                        continue
-                    except KeyboardInterrupt:
-                        stop_now = True
-            if errors:
-                raise errors[0]
-            if stop_now:
-                raise KeyboardInterrupt
-
         done, interrupted, rel_err = 0, False, None
         elapsed = 0.0
         start = _time.perf_counter()
@@ -375,7 +377,7 @@ class Renderer:
             size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
             size = min(size, spp - done)
             try:
-                run_pass(done, done + size)
+                run_pass(pool, launches, workers, done, done + size)
             except KeyboardInterrupt:
                 interrupted = True
             wp.synchronize_device(dev)

@@ -277,7 +277,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                 kind = KIND_PLANE
                 index = i
         if use_bvh:
-            query = wp.bvh_query_ray(scene.bvh, o, d)
+            query = wp.bvh_query_ray(scene.bvh, o, d, scene.bvh_root)
             j = int(0)
             while wp.bvh_query_next(query, j, best):
                 k = scene.bvh_prims[j][0]
@@ -419,7 +419,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         if use_bvh:
-            query = wp.bvh_query_ray(scene.bvh, o, d)
+            query = wp.bvh_query_ray(scene.bvh, o, d, scene.bvh_root)
             j = int(0)
             while wp.bvh_query_next(query, j, t_max):
                 k = scene.bvh_prims[j][0]

@@ -386,6 +386,24 @@ class PointLight:
         set_field(self, "falloff", as_choice(self.falloff, "falloff", FALLOFFS))
 
 
+@checked_keywords
+@dataclass(frozen=True)
+class DirectionalLight:
+    """Light from infinitely far away (the sun; a robotics camera's usual key light): every point
+    receives it along the same direction, with no falloff. ``direction`` is the way the light
+    travels (from the light into the scene); shading is the point light's with falloff "none",
+    L = I·(kd·max(0, n·l) + ks·max(0, n·h)^p) with l = -direction, and its shadow rays run to
+    infinity."""
+
+    direction: Vec3 = (0.0, -1.0, 0.0)
+    intensity: RGB = (1.0, 1.0, 1.0)  # I in the lecture's formula
+
+    def __post_init__(self):
+        d = as_direction(self.direction, "direction")
+        set_field(self, "direction", tuple(float(x) / norm(d) for x in d))
+        set_field(self, "intensity", as_rgb(self.intensity, "intensity"))
+
+
 def _area_light_common(obj: Any) -> None:
     set_field(obj, "radiance", as_rgb(obj.radiance, "radiance"))
     set_field(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
@@ -534,9 +552,9 @@ def is_area_light(light) -> bool:
 # the one list of each: scene-file type names, the classes behind them (the loader, Scene's
 # validation and the package's exports read these)
 SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
-LIGHT_TYPES = {"point": PointLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
+LIGHT_TYPES = {"point": PointLight, "directional": DirectionalLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
 Shape = Sphere | Plane | Rectangle | Disk | Mesh
-Light = PointLight | RectLight | SphereLight | DiskLight
+Light = PointLight | DirectionalLight | RectLight | SphereLight | DiskLight
 
 
 @checked_keywords

@@ -1,0 +1,523 @@
+"""Batched rendering: W worlds × C cameras of one scene structure in one launch per slice, with
+poses read from device arrays.
+
+A simulation pipeline (robotics, synthetic data) steps many copies of one scene ("worlds") that
+differ only in where things are, and looks at each through a few cameras. :class:`BatchRenderer`
+builds the scene once and keeps, on the device:
+
+* ``shape_poses`` (W, S) ``wp.transform``: a rigid pose applied on top of each of the scene's S
+  shapes as described (identity by default). Spheres: the centre is moved and turned (the radius
+  stays); planes, rectangles and disks: moved and turned; meshes: the pose is composed with the
+  shape's own transform (pose ∘ transform, so a mesh keeps its scale). ``shape_poses_end`` holds
+  the poses at shutter close (motion blur, ``motion_blur=True``); planes, rectangles and disks
+  take the shutter-open pose.
+* ``light_positions`` (W, L) ``vec3``: the position of each point light and the direction of
+  travel of each directional light (L = those lights, in ``scene.lights`` order). Area lights
+  are the same in every world.
+* ``camera_poses`` (W, C) ``wp.transform``: camera to world; the camera looks along its local
+  -z with +y up (the OpenGL convention). ``camera_poses_end``: at shutter close (the up vector
+  is the shutter-open one). ``fov`` (C,) float32: each camera's vertical field of view in
+  degrees. Image size, aperture, focus and shutter are the scene camera's.
+
+Write into these arrays in place, from Warp kernels or with ``wp.copy`` (``set_*`` methods
+accept numpy, ``wp.array``s of transforms or of 4×4 matrices): a render reads them with three
+small kernels (world tables, cameras, the BVH's bounds plus a refit), so an update costs no host
+copy, no rebuild and no recompile; ``counters`` counts all three, and the tests check them
+against Warp's own entry points.
+
+The frame rendered is one tall image, W·C·H rows of the camera's width, cut into interleaved row
+slices over the worker threads like a single image (``render.py``); each pixel's noise is keyed
+by its index in that image, so the batch is bit-identical for any thread count, and a world
+renders the same whatever the other worlds hold. The render kernel is the single-image one's
+per-pixel function with the world's rows of each table (array views of (W, n) tables) and the
+world's group root in one grouped BVH over every world's bounded analytic shapes.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from . import _warp
+from ._warp import build_once
+from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
+from .errors import RenderError
+from .film import Film, FilmData
+from .integrator import kernels_for
+from .records import (
+    FALLOFF_DIRECTIONAL, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE, CameraData, DiskRec, Features, InstRec,
+    PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SphereRec,
+)
+from .render import SLICES_PER_WORKER, _slices, check_seed, default_workers, run_pass
+from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
+from .geometry import disk_extent
+
+BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
+
+
+@wp.struct
+class WorldTables:
+    """Every per-world table, (W, n) each: row w is world w's table."""
+
+    spheres: wp.array2d(dtype=SphereRec)
+    planes: wp.array2d(dtype=PlaneRec)
+    rects: wp.array2d(dtype=RectRec)
+    disks: wp.array2d(dtype=DiskRec)
+    insts: wp.array2d(dtype=InstRec)
+    plights: wp.array2d(dtype=PointLightRec)
+
+
+@wp.func
+def world_scene(scene: SceneData, tables: WorldTables, w: int) -> SceneData:
+    """``scene`` seen from world w: its rows of every per-world table and its BVH group root."""
+    sc = scene
+    sc.spheres = tables.spheres[w]
+    sc.planes = tables.planes[w]
+    sc.rects = tables.rects[w]
+    sc.disks = tables.disks[w]
+    sc.insts = tables.insts[w]
+    sc.plights = tables.plights[w]
+    if scene.bvh != wp.uint64(0):
+        sc.bvh_root = wp.bvh_get_group_root(scene.bvh, w)
+    return sc
+
+
+@build_once
+def _pose_kernels():
+    """The kernels that turn the pose arrays into world tables, cameras and BVH bounds (one
+    module, whatever the scene)."""
+
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def pose_shapes(base: SceneData, shape_map: wp.array(dtype=wp.vec2i), poses: wp.array2d(dtype=wp.transform),
+                    poses_end: wp.array2d(dtype=wp.transform), tables: WorldTables):
+        w, s = wp.tid()
+        kind = shape_map[s][0]
+        row = shape_map[s][1]
+        T0 = poses[w, s]
+        T1 = poses_end[w, s]
+        q0 = wp.transform_get_rotation(T0)
+        if kind == KIND_SPHERE:
+            sph = base.spheres[row]
+            sph.c0 = wp.transform_point(T0, sph.c0)
+            sph.c1 = wp.transform_point(T1, sph.c1)
+            tables.spheres[w, row] = sph
+        elif kind == KIND_PLANE:
+            pl = base.planes[row]
+            pl.p = wp.transform_point(T0, pl.p)
+            pl.n = wp.normalize(wp.quat_rotate(q0, pl.n))
+            tables.planes[w, row] = pl
+        elif kind == KIND_RECT:
+            rc = base.rects[row]
+            rc.c = wp.transform_point(T0, rc.c)
+            rc.e1 = wp.quat_rotate(q0, rc.e1)
+            rc.e2 = wp.quat_rotate(q0, rc.e2)
+            rc.n = wp.normalize(wp.quat_rotate(q0, rc.n))
+            tables.rects[w, row] = rc
+        elif kind == KIND_DISK:
+            dk = base.disks[row]
+            dk.c = wp.transform_point(T0, dk.c)
+            dk.n = wp.normalize(wp.quat_rotate(q0, dk.n))
+            tables.disks[w, row] = dk
+        elif kind == KIND_MESH:
+            ins = base.insts[row]
+            q1 = wp.transform_get_rotation(T1)
+            ins.pos0 = wp.transform_point(T0, ins.pos0)
+            ins.rot0 = wp.normalize(q0 * ins.rot0)
+            ins.pos1 = wp.transform_point(T1, ins.pos1)
+            rot1 = wp.normalize(q1 * ins.rot1)
+            if wp.dot(rot1, ins.rot0) < 0.0:  # slerp along the shorter arc
+                rot1 = -rot1
+            ins.rot1 = rot1
+            tables.insts[w, row] = ins
+
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def pose_lights(base: SceneData, positions: wp.array2d(dtype=wp.vec3), tables: WorldTables):
+        w, i = wp.tid()
+        rec = base.plights[i]
+        x = positions[w, i]
+        if rec.inv_sq == FALLOFF_DIRECTIONAL:
+            rec.pos = -wp.normalize(x)  # the unit vector towards the light
+        else:
+            rec.pos = x
+        tables.plights[w, i] = rec
+
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def pose_cameras(base: CameraData, poses: wp.array2d(dtype=wp.transform),
+                     poses_end: wp.array2d(dtype=wp.transform), fov: wp.array(dtype=float),
+                     cams: wp.array(dtype=CameraData)):
+        w, c = wp.tid()
+        n_cams = poses.shape[1]
+        cam = base
+        T0 = poses[w, c]
+        T1 = poses_end[w, c]
+        q0 = wp.transform_get_rotation(T0)
+        forward = wp.vec3(0.0, 0.0, -1.0)
+        cam.eye0 = wp.transform_get_translation(T0)
+        cam.look0 = cam.eye0 + wp.quat_rotate(q0, forward)
+        cam.eye1 = wp.transform_get_translation(T1)
+        cam.look1 = cam.eye1 + wp.quat_rotate(wp.transform_get_rotation(T1), forward)
+        cam.up = wp.normalize(wp.quat_rotate(q0, wp.vec3(0.0, 1.0, 0.0)))
+        cam.top = base.dist * wp.tan(0.5 * wp.radians(fov[c]))
+        cam.right = cam.top * float(base.width) / float(base.height)
+        cams[w * n_cams + c] = cam
+
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def world_bounds(tables: WorldTables, prims: wp.array(dtype=wp.vec2i), per_world: int, moving: int,
+                     lowers: wp.array(dtype=wp.vec3), uppers: wp.array(dtype=wp.vec3)):
+        j = wp.tid()
+        w = j / per_world
+        kind = prims[j][0]
+        row = prims[j][1]
+        lo = wp.vec3(0.0)
+        hi = wp.vec3(0.0)
+        if kind == KIND_SPHERE:
+            sph = tables.spheres[w, row]
+            r = wp.vec3(sph.r, sph.r, sph.r)
+            lo = sph.c0 - r
+            hi = sph.c0 + r
+            if moving != 0:  # swept over the shutter
+                lo = wp.min(lo, sph.c1 - r)
+                hi = wp.max(hi, sph.c1 + r)
+        elif kind == KIND_RECT:
+            q = tables.rects[w, row]
+            lo = wp.min(wp.min(q.c, q.c + q.e1), wp.min(q.c + q.e2, q.c + q.e1 + q.e2))
+            hi = wp.max(wp.max(q.c, q.c + q.e1), wp.max(q.c + q.e2, q.c + q.e1 + q.e2))
+        else:
+            dk = tables.disks[w, row]
+            ext = disk_extent(dk.n, dk.r)
+            lo = dk.c - ext
+            hi = dk.c + ext
+        size = wp.max(hi - lo)
+        big = wp.max(wp.max(wp.abs(lo[0]), wp.abs(lo[1])), wp.max(wp.abs(lo[2]), wp.max(wp.abs(hi[0]),
+                      wp.max(wp.abs(hi[1]), wp.abs(hi[2])))))
+        pad = wp.vec3(1.0) * ((size + big) * BOUNDS_PAD)
+        lowers[j] = lo - pad
+        uppers[j] = hi + pad
+
+    return pose_shapes, pose_lights, pose_cameras, world_bounds
+
+
+@build_once
+def _image_kernel():
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def batch_image(accum: wp.array(dtype=wp.vec3), inv_spp: float, out: wp.array(dtype=wp.vec3)):
+        i = wp.tid()
+        out[i] = accum[i] * inv_spp
+
+    return batch_image
+
+
+@build_once
+def batch_kernel_for(F: Features):
+    """The batched render kernel for a feature set: the single-image kernel's per-pixel function
+    on each world's tables (one Warp module per feature set, compiled on first use)."""
+    render_pixel = kernels_for(F).pixel
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
+                     row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
+                     n_cams: int, height: int, width: int):
+        # this launch's pixels: rows row0, row0 + stride, ... of the tall image (W·C·H rows)
+        tid = wp.tid()
+        px = tid % width
+        gy = row0 + (tid / width) * stride
+        image = gy / height
+        if image >= cams.shape[0]:
+            return
+        w = image / n_cams
+        render_pixel(world_scene(scene, tables, w), cams[image], params, px, gy - image * height, gy * width + px,
+                     s0, s1, film)
+
+    return batch_render
+
+
+@dataclass
+class BatchResult:
+    color: "wp.array"  # (W, C, H, Wpx) vec3 on the device: linear radiance
+    spp: int
+    wall_time: float  # seconds from the pose update to the image (compiles excluded)
+    rays: int
+
+    def numpy(self) -> np.ndarray:
+        """The colour as numpy (W, C, H, Wpx, 3) float32: a copy (on the CPU device too, where
+        ``color.numpy()`` would be a view of the buffer the next render overwrites)."""
+        return np.array(self.color.numpy(), copy=True)
+
+    @property
+    def mpix_per_s(self) -> float:
+        w, c, h, x = self.color.shape
+        return w * c * h * x / self.wall_time / 1e6 if self.wall_time > 0 else float("nan")
+
+
+def _camera_quaternion(eye, look_at, up) -> np.ndarray:
+    """The rotation (x, y, z, w) of the camera frame u, v, w (columns) of ``camera.py``."""
+    eye, look_at, up = (np.asarray(x, np.float64) for x in (eye, look_at, up))
+    w = eye - look_at
+    w /= np.linalg.norm(w)
+    u = np.cross(up, w)
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    m = np.stack([u, v, w], axis=1)
+    return np.array(wp.quat_from_matrix(wp.mat33(*m.reshape(-1))), dtype=np.float64)
+
+
+def _positive_int(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise RenderError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+class BatchRenderer:
+    """W worlds × C cameras of one scene, rendered together from poses held on the device (see
+    the module docstring for the pose arrays and their conventions).
+
+    ``motion_blur=True`` samples time over the shutter between ``shape_poses`` /
+    ``camera_poses`` and their ``_end`` arrays; ``features`` may widen the kernel (e.g. to keep
+    one kernel across scenes). Every other distribution effect (soft shadows, depth of field,
+    glossy and refractive materials) comes from the scene as in a single render.
+    """
+
+    def __init__(self, scene: Scene, worlds: int = 1, cameras: int = 1, device: str | None = None,
+                 motion_blur: bool = False, features: Features | None = None):
+        if not isinstance(scene, Scene):
+            raise RenderError(f"BatchRenderer needs a warprt.Scene, got {type(scene).__name__}")
+        self.worlds = _positive_int(worlds, "worlds")
+        self.cameras = _positive_int(cameras, "cameras")
+        _warp.init()
+        self.device = dev = _warp.resolve_device(device)
+        self.scene = scene
+        self.motion_blur = bool(motion_blur)
+        cam = scene.camera
+        self.height, self.width = cam.height, cam.width
+        W, C = self.worlds, self.cameras
+        pixels = W * C * cam.height * cam.width
+        if pixels >= 1 << 31:
+            raise RenderError(f"{W} worlds × {C} cameras × {cam.width}×{cam.height} pixels exceed 2^31 pixels per batch")
+        self.counters = {"rebuilds": 0, "compiles": 0, "host_transfers": 0}
+        self.built = DeviceScene(scene, dev)
+        self.counters["rebuilds"] += 1
+        F = self.built.features
+        if self.motion_blur:
+            F = F.union(Features(motion=True))
+        if features is not None:
+            F = F.union(features)
+        self.features = F
+        d = self.built.data
+
+        # per-world tables: world w starts as the scene itself
+        self.tables = WorldTables()
+        for name in ("spheres", "planes", "rects", "disks", "insts", "plights"):
+            base = getattr(d, name)
+            host = base.numpy()
+            setattr(self.tables, name, wp.array(np.repeat(host[None], W, axis=0), dtype=base.dtype, device=dev))
+            self.counters["host_transfers"] += 2
+        self._shape_map = wp.array(np.array(self.built.shape_ids or [(0, 0)], dtype=np.int32), dtype=wp.vec2i,
+                                   device=dev)
+        S = len(scene.shapes)
+        ident = np.zeros((W, max(S, 1), 7), np.float32)
+        ident[..., 6] = 1.0
+        self.shape_poses = wp.array(ident, dtype=wp.transform, device=dev)
+        self.shape_poses_end = wp.array(ident, dtype=wp.transform, device=dev)
+        lights = [light for light in scene.lights if isinstance(light, (PointLight, DirectionalLight))]
+        pos = np.array([light.direction if isinstance(light, DirectionalLight) else light.position
+                        for light in lights] or [(0.0, 0.0, 0.0)], np.float32)
+        self.light_positions = wp.array(np.repeat(pos[None], W, axis=0), dtype=wp.vec3, device=dev)
+        self._n_shapes, self._n_lights = S, len(lights)
+        eye1, look1 = cam.pose(1.0)
+        t0 = np.concatenate([cam.eye, _camera_quaternion(cam.eye, cam.look_at, cam.up)])
+        t1 = np.concatenate([eye1, _camera_quaternion(eye1, look1, cam.up)])
+        self.camera_poses = wp.array(np.tile(t0.astype(np.float32), (W, C, 1)), dtype=wp.transform, device=dev)
+        self.camera_poses_end = wp.array(np.tile(t1.astype(np.float32), (W, C, 1)), dtype=wp.transform, device=dev)
+        self.fov = wp.array(np.full(C, cam.fov, np.float32), dtype=float, device=dev)
+        self._cams = wp.zeros(W * C, dtype=CameraData, device=dev)
+        self.counters["host_transfers"] += 7
+
+        # one grouped BVH over every world's bounded analytic shapes (group = world), refitted
+        # from the posed tables before each render
+        self.scene_data = SceneData()
+        for name in SceneData.vars:
+            setattr(self.scene_data, name, getattr(d, name))
+        prims = [(KIND_SPHERE, i) for i in range(d.n_spheres)] + [(KIND_RECT, i) for i in range(d.n_rects)] \
+            + [(KIND_DISK, i) for i in range(d.n_disks)]
+        self._per_world = len(prims)
+        self.bvh = None
+        self.scene_data.bvh = wp.uint64(0)
+        self.scene_data.bvh_root = -1
+        if len(prims) >= ANALYTIC_BVH_MIN:
+            self._prims = wp.array(np.tile(np.array(prims, np.int32), (W, 1)), dtype=wp.vec2i, device=dev)
+            self._lowers = wp.zeros(W * len(prims), dtype=wp.vec3, device=dev)
+            self._uppers = wp.zeros(W * len(prims), dtype=wp.vec3, device=dev)
+            self._groups = wp.array(np.repeat(np.arange(W, dtype=np.int32), len(prims)), dtype=wp.int32, device=dev)
+            self.counters["host_transfers"] += 2
+            self._update_tables()
+            self.bvh = wp.Bvh(self._lowers, self._uppers, groups=self._groups)
+            self.counters["rebuilds"] += 1
+            self.scene_data.bvh = wp.uint64(self.bvh.id)
+            self.scene_data.bvh_prims = self._prims
+        self.film = Film(cam.width, W * C * cam.height, dev)
+        self._color = wp.zeros(pixels, dtype=wp.vec3, device=dev)
+        self._kernel = batch_kernel_for(self.features)
+        self._loaded = False
+        self._pool = None
+        self._pool_size = 0
+
+    # --- poses ------------------------------------------------------------------------------
+
+    def _check_poses(self, values, shape: tuple, name: str) -> "wp.array":
+        """``values`` as a (shape) wp.array of transforms on this device: a wp.array of
+        wp.transform, or of 4×4 matrices (rigid: rotation and translation), or numpy (..., 7)
+        (x, y, z, qx, qy, qz, qw) or (..., 4, 4)."""
+        if isinstance(values, wp.array):
+            if values.device != self.device:
+                raise RenderError(f"{name}: the array is on {values.device}, the renderer on {self.device}")
+            if values.dtype == wp.transform and tuple(values.shape) == shape:
+                return values
+            if values.dtype == wp.mat44 and tuple(values.shape) == shape:
+                out = wp.empty(shape, dtype=wp.transform, device=self.device)
+                wp.launch(_matrix_kernel(), dim=shape, inputs=[values, out], device=self.device)
+                return out
+            raise RenderError(f"{name}: expected a wp.array of wp.transform or wp.mat44 shaped {shape}, "
+                              f"got {values.dtype.__name__} {tuple(values.shape)}")
+        a = np.asarray(values, dtype=np.float64)
+        if a.shape == shape + (4, 4):
+            a = _rigid_from_matrices(a, name)
+        if a.shape != shape + (7,) or not np.isfinite(a).all():
+            raise RenderError(f"{name}: expected finite values shaped {shape + (7,)} (position, quaternion x y z w) "
+                              f"or {shape + (4, 4)} (matrices), got {a.shape}")
+        q = a[..., 3:]
+        norms = np.linalg.norm(q, axis=-1, keepdims=True)
+        if (norms == 0).any():
+            raise RenderError(f"{name}: a quaternion is zero")
+        a = np.concatenate([a[..., :3], q / norms], axis=-1)
+        self.counters["host_transfers"] += 1
+        return wp.array(a.astype(np.float32), dtype=wp.transform, device=self.device)
+
+    def set_shape_poses(self, poses, end=None) -> None:
+        """Poses of every shape in every world, (W, S) (see the module docstring); ``end``: at
+        shutter close (default: the same)."""
+        shape = (self.worlds, self._n_shapes)
+        wp.copy(self.shape_poses, self._check_poses(poses, shape, "shape_poses"))
+        wp.copy(self.shape_poses_end, self._check_poses(poses if end is None else end, shape, "shape_poses_end"))
+
+    def set_camera_poses(self, poses, end=None) -> None:
+        """Camera-to-world poses, (W, C) (the camera looks along its local -z, +y up); ``end``:
+        at shutter close (default: the same)."""
+        shape = (self.worlds, self.cameras)
+        wp.copy(self.camera_poses, self._check_poses(poses, shape, "camera_poses"))
+        wp.copy(self.camera_poses_end, self._check_poses(poses if end is None else end, shape, "camera_poses_end"))
+
+    def _update_tables(self) -> None:
+        pose_shapes, pose_lights, pose_cameras, world_bounds = _pose_kernels()
+        dev, d = self.device, self.built.data
+        end = self.shape_poses_end if self.motion_blur else self.shape_poses
+        if self._n_shapes:
+            wp.launch(pose_shapes, dim=(self.worlds, self._n_shapes), device=dev,
+                      inputs=[d, self._shape_map, self.shape_poses, end, self.tables])
+        if self._n_lights:
+            wp.launch(pose_lights, dim=(self.worlds, self._n_lights), device=dev,
+                      inputs=[d, self.light_positions, self.tables])
+        cam_end = self.camera_poses_end if self.motion_blur or self.scene.camera.moves else self.camera_poses
+        wp.launch(pose_cameras, dim=(self.worlds, self.cameras), device=dev,
+                  inputs=[self.built.camera, self.camera_poses, cam_end, self.fov, self._cams])
+        if self._per_world >= ANALYTIC_BVH_MIN:
+            wp.launch(world_bounds, dim=self.worlds * self._per_world, device=dev,
+                      inputs=[self.tables, self._prims, self._per_world, int(self.features.motion), self._lowers,
+                              self._uppers])
+
+    # --- rendering --------------------------------------------------------------------------
+
+    def _workers(self, workers: int):
+        from concurrent.futures import ThreadPoolExecutor
+
+        if self._pool is None or self._pool_size != workers:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+            self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warprt-batch")
+            self._pool_size = workers
+        return self._pool
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def __del__(self):
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
+
+    def render(self, spp: int = 1, seed: int = 0, *, workers: int | None = None, slices: int | None = None) -> BatchResult:
+        """Render every world and camera with ``spp`` samples per pixel from the current pose
+        arrays. The colour stays on the device: ``BatchResult.color`` is a (W, C, H, Wpx) vec3
+        ``wp.array`` (``.numpy()`` gives (W, C, H, Wpx, 3) float32; DLPack shares it with torch
+        or JAX). The array is reused by the next render: copy it to keep it."""
+        spp = _positive_int(spp, "spp")
+        if spp > SPP_LIMIT:
+            raise RenderError(f"spp must be <= {SPP_LIMIT}, got {spp}")
+        check_seed(seed)
+        workers = default_workers() if workers is None else _positive_int(workers, "workers")
+        dev = self.device
+        rows = self.worlds * self.cameras * self.height
+        n_slices = (SLICES_PER_WORKER * workers if slices is None else _positive_int(slices, "slices")) \
+            if dev.is_cpu else 1
+        params = render_params(self.scene, spp, int(seed), self.features)
+        inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
+                  self.height, self.width]
+        if not self._loaded:  # load the modules from this thread (workers must not race to build them)
+            t0 = _time.perf_counter()
+            self._update_tables()
+            wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
+            wp.launch(_image_kernel(), dim=1, device=dev, inputs=[self.film.data.accum, 1.0, self._color])
+            wp.synchronize_device(dev)
+            self.counters["compiles"] += 1
+            self.compile_time = _time.perf_counter() - t0
+            self._loaded = True
+        start = _time.perf_counter()
+        self._update_tables()
+        if self.bvh is not None:
+            self.bvh.refit()
+        for name in ("accum", "accum_sq", "rays", "overflow"):
+            getattr(self.film.data, name).zero_()
+        launches = []
+        for first, stride, count in _slices(self.width, rows, n_slices):
+            args = list(inputs)
+            args[3], args[4] = first, stride
+            launches.append(wp.launch(self._kernel, dim=count, device=dev, inputs=args, record_cmd=True))
+        run_pass(self._workers(workers), launches, workers, 0, spp)
+        wp.launch(_image_kernel(), dim=self._color.shape[0], device=dev,
+                  inputs=[self.film.data.accum, 1.0 / float(spp), self._color])
+        wp.synchronize_device(dev)
+        wall = _time.perf_counter() - start
+        color = self._color.reshape((self.worlds, self.cameras, self.height, self.width))
+        return BatchResult(color=color, spp=spp, wall_time=wall, rays=-1)
+
+
+@build_once
+def _matrix_kernel():
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def matrices_to_transforms(m: wp.array2d(dtype=wp.mat44), out: wp.array2d(dtype=wp.transform)):
+        i, j = wp.tid()
+        a = m[i, j]
+        r = wp.mat33(a[0, 0], a[0, 1], a[0, 2], a[1, 0], a[1, 1], a[1, 2], a[2, 0], a[2, 1], a[2, 2])
+        out[i, j] = wp.transform(wp.vec3(a[0, 3], a[1, 3], a[2, 3]), wp.normalize(wp.quat_from_matrix(r)))
+
+    return matrices_to_transforms
+
+
+def _rigid_from_matrices(m: np.ndarray, name: str) -> np.ndarray:
+    """(..., 4, 4) rigid matrices as (..., 7) position + quaternion (x, y, z, w), checked."""
+    r = m[..., :3, :3]
+    eye = np.eye(3)
+    if not np.isfinite(m).all():
+        raise RenderError(f"{name}: a matrix is not finite")
+    if not np.allclose(m[..., 3, :], [0, 0, 0, 1], atol=1e-6):
+        raise RenderError(f"{name}: the last row of a pose matrix must be [0, 0, 0, 1]")
+    if not np.allclose(np.swapaxes(r, -1, -2) @ r, eye, atol=1e-4) or (np.linalg.det(r) < 0).any():
+        raise RenderError(f"{name}: a pose matrix must be a rotation and a translation (no scale, shear or mirror)")
+    flat = r.reshape(-1, 3, 3)
+    q = np.array([wp.quat_from_matrix(wp.mat33(*x.reshape(-1))) for x in flat], np.float64).reshape(r.shape[:-2] + (4,))
+    return np.concatenate([m[..., :3, 3], q], axis=-1)
