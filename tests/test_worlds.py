@@ -117,13 +117,15 @@ def test_every_world_and_camera_equals_the_single_render_of_that_world():
     br.set_camera_poses(cams)
     fovs = np.array([45.0, 30.0], np.float32)
     wp.copy(br.fov, wp.array(fovs, dtype=float, device="cpu"))
-    batch = br.render(spp=1).numpy()
+    result = br.render(spp=1)
+    batch = result.numpy()
     assert batch.shape == (W, C, H, X, 3)
-    worst, flipped = 0.0, 0
+    worst, flipped, rays = 0.0, 0, 0
     for w in range(W):
         for c in range(C):
             single = warprt.Renderer(posed_scene(poses[w], lights[w], cams[w, c], float(fovs[c])), device="cpu")
-            ref = single.render(spp=1, progress=False).image
+            out = single.render(spp=1, progress=False)
+            ref, rays = out.image, rays + out.rays
             diff = np.abs(batch[w, c] - ref).max(axis=2)
             bad = diff > 5e-5 + 5e-5 * ref.max(axis=2)
             flipped += int(bad.sum())
@@ -133,6 +135,8 @@ def test_every_world_and_camera_equals_the_single_render_of_that_world():
                 assert np.abs(batch[w, c] - batch[0, 0]).max() > 0.05
     assert flipped <= 3, f"{flipped} pixels see another surface than the single render"
     assert worst < 5e-5, worst
+    if flipped == 0:  # the same rays, camera, secondary and shadow, as the single renders together
+        assert result.rays == rays
 
 
 def test_batches_are_bit_identical_for_any_thread_or_slice_count_and_worlds_are_independent():

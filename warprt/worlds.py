@@ -48,6 +48,7 @@ from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .errors import RenderError
 from .film import Film, FilmData
 from .integrator import kernels_for
+from .memory import check_memory
 from .records import (
     FALLOFF_DIRECTIONAL, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE, CameraData, DiskRec, Features, InstRec,
     PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SphereRec,
@@ -240,7 +241,16 @@ class BatchResult:
     color: "wp.array"  # (W, C, H, Wpx) vec3 on the device: linear radiance
     spp: int
     wall_time: float  # seconds from the pose update to the image (compiles excluded)
-    rays: int
+    film: Film  # the batch's accumulation buffers (read only on demand: rays, overflows)
+
+    @property
+    def rays(self) -> int:
+        """Camera, secondary and shadow rays traced (summed on the host when asked)."""
+        return self.film.rays()
+
+    @property
+    def stack_overflows(self) -> int:
+        return self.film.overflows()
 
     def numpy(self) -> np.ndarray:
         """The colour as numpy (W, C, H, Wpx, 3) float32: a copy (on the CPU device too, where
@@ -297,6 +307,8 @@ class BatchRenderer:
         pixels = W * C * cam.height * cam.width
         if pixels >= 1 << 31:
             raise RenderError(f"{W} worlds × {C} cameras × {cam.width}×{cam.height} pixels exceed 2^31 pixels per batch")
+        # the film and the colour buffer of the whole batch, refused before anything is built
+        check_memory(cam.width, W * C * cam.height, formats=(), film_on_host=dev.is_cpu)
         self.counters = {"rebuilds": 0, "compiles": 0, "host_transfers": 0}
         self.built = DeviceScene(scene, dev)
         self.counters["rebuilds"] += 1
@@ -493,7 +505,7 @@ class BatchRenderer:
         wp.synchronize_device(dev)
         wall = _time.perf_counter() - start
         color = self._color.reshape((self.worlds, self.cameras, self.height, self.width))
-        return BatchResult(color=color, spp=spp, wall_time=wall, rays=-1)
+        return BatchResult(color=color, spp=spp, wall_time=wall, film=self.film)
 
 
 @build_once
