@@ -101,10 +101,11 @@ def main(argv: list[str] | None = None) -> int:
     z = np.where(hits["hit"], hits["t"] * (directions @ -w), 0.0).reshape(h, w_px, n)
     count = hits["hit"].reshape(h, w_px, n).sum(axis=2)
     hit = count > 0
-    depth = np.where(hit, z.sum(axis=2) / np.maximum(count, 1), 0.0)
+    # no return: inf, warprt's one miss value (trace_rays' t, AOV depth and z)
+    depth = np.where(hit, z.sum(axis=2) / np.maximum(count, 1), np.inf)
     Image.fromarray(normalised_grey(depth, hit)).save(os.path.join(args.out_dir, "depth.png"))
     warprt.save_image(depth.astype(np.float32), os.path.join(args.out_dir, "depth.exr"),
-                      metadata={"depth": "planar, scene units; 0 = no return"})
+                      metadata={"depth": "planar, scene units; inf = no return"})
 
     # --- spinning lidar: arbitrary rays from one point
     dirs = lidar_directions(args.height, args.width).reshape(-1, 3)
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     grazing = np.abs(np.sum(scan["normal"][returns] * dirs[returns], axis=1))  # |cos| of incidence
     if returns.any():
         print(f"  mean |cos incidence| {grazing.mean():.3f}")
-    rng = np.where(returns, scan["t"], 0.0).reshape(args.height, args.width)
+    rng = np.where(returns, scan["t"], np.inf).reshape(args.height, args.width)
     Image.fromarray(normalised_grey(rng, returns.reshape(rng.shape))).save(os.path.join(args.out_dir, "lidar.png"))
     np.save(os.path.join(args.out_dir, "lidar_points.npy"), scan["position"][returns])
 

@@ -45,8 +45,8 @@ def _scene(**kw) -> warprt.Scene:
 
 
 def test_aovs_match_closed_forms():
-    scene = _scene()
-    result = warprt.Renderer(scene).render(spp=4, progress=False,
+    scene = _scene(render=warprt.RenderSettings(sampler="regular"))  # 1 regular sample: the pixel centre
+    result = warprt.Renderer(scene).render(spp=1, progress=False,
                                            aovs=["depth", "z", "normal", "albedo", "position", "object_id",
                                                  "material", "motion"])
     a = result.aovs
@@ -77,16 +77,18 @@ def test_aovs_match_closed_forms():
 
 def test_area_light_ids_and_motion_vectors():
     scene = _scene(shapes=(warprt.Sphere(center=(0, 0, 0), center_end=(0.5, 0.2, 0), radius=1.0, material="red"),),
-                   camera=warprt.Camera(eye=(0, 0, 5), look_at=(0, 0, 0), fov=60, width=24, height=18))
+                   camera=warprt.Camera(eye=(0, 0, 5), look_at=(0, 0, 0), fov=60, width=24, height=18),
+                   render=warprt.RenderSettings(sampler="regular"))  # the pixel centre, mid-shutter
     a = warprt.Renderer(scene).render(spp=1, progress=False, aovs=["object_id", "motion", "position"]).aovs
     # the rectangle light sits above; its id is len(shapes) + its index among the lights
     look_up = _scene(shapes=(warprt.Plane(point=(0, -1, 0), material="floor"),),
                      camera=warprt.Camera(eye=(0, 0, 2), look_at=(0, 3, 0), width=16, height=12))
     ids = warprt.Renderer(look_up).render(spp=1, progress=False, aovs=["object_id"]).aovs["object_id"]
     assert set(np.unique(ids)) == {-1, 1 + 1}  # sky and the light (lights[1] after one shape)
-    # motion of a sphere point: the displacement (0.5, 0.2, 0) projected by the pinhole camera
+    # motion of a sphere point over the whole shutter: the displacement (0.5, 0.2, 0) projected by
+    # the pinhole camera; the position is the point seen at the sample's time, mid-shutter
     sel = a["object_id"] == 0
-    p0 = a["position"][sel].astype(np.float64)
+    p0 = a["position"][sel].astype(np.float64) - 0.5 * np.array([0.5, 0.2, 0.0])
     p1 = p0 + np.array([0.5, 0.2, 0.0])
     top = math.tan(math.radians(30))
     right = top * 24 / 18

@@ -198,8 +198,10 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
     """Write ``image`` (H, W, 3 linear float) to ``path``; the format follows the extension.
 
     ``image`` may also be a dict of layers: ``{"color": rgb, "depth": ..., "normal": ...}`` (as
-    returned by ``render(..., aovs=[...])``). An EXR then holds every layer, each channel named
-    ``layer.X`` / ``layer.Y`` / ``layer.Z`` (or ``layer.V`` for one channel); a PNG holds the colour.
+    returned by ``render(..., aovs=[...])``, numpy or ``wp.array``). An EXR then holds every
+    layer: warprt's AOVs under the channel names of ``aov.EXR_CHANNELS`` (``Z`` depth, ``A``
+    coverage, ``N.X``..., ids as UINT holding id + 1), other layers as ``layer.X`` / ``layer.Y`` /
+    ``layer.Z`` (``layer.V`` for one channel); a PNG holds the colour.
     """
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower()
@@ -223,12 +225,20 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
             info.add_text(str(k), str(int(v)) if isinstance(v, bool) else str(v))
         _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG", pnginfo=info))
         return
+    from .aov import AOVS
+
     channels = {"RGB": a[:, :, :3]}
     for name, data in (layers or {}).items():
-        d = np.asarray(data)
+        d = np.asarray(data.numpy() if hasattr(data, "numpy") else data)
         if d.shape[:2] != a.shape[:2]:
             raise RenderError(f"{path}: layer {name!r} has shape {d.shape}, the colour {a.shape}")
-        if d.ndim == 2:
+        spec = AOVS.get(name)
+        if spec is not None and spec.uint:  # ids: UINT channels of id + 1, 0 for none
+            channels[spec.exr[0]] = (d.astype(np.int64) + 1).clip(0, 0xFFFFFFFF).astype(np.uint32)
+        elif spec is not None:
+            for k, channel in enumerate(spec.exr):
+                channels[channel] = d if d.ndim == 2 else d[:, :, k]
+        elif d.ndim == 2:  # a layer of the caller's own
             channels[f"{name}.V"] = d
         else:
             for k in range(d.shape[2]):
@@ -237,7 +247,8 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
 
 
 def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str, object] | None = None) -> None:
-    """Write named float32 channels/layers to one EXR file (``RGB`` is the colour)."""
+    """Write named channels/layers to one EXR file (``RGB`` is the colour): float32, or UINT for
+    uint32 arrays."""
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
@@ -247,7 +258,8 @@ def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str
         if not isinstance(v, (int, float, str)):
             v = str(v)
         header[str(k)] = v
-    channels = {name: np.ascontiguousarray(np.asarray(data, dtype=np.float32)) for name, data in layers.items()}
+    channels = {name: np.ascontiguousarray(data if np.asarray(data).dtype == np.uint32 else
+                                           np.asarray(data, dtype=np.float32)) for name, data in layers.items()}
 
     def write(p):
         with OpenEXR.File(header, channels) as f:
@@ -258,7 +270,8 @@ def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str
 
 def read_exr(path: str | os.PathLike, layers: bool = False):
     """Read an EXR written by warprt: the RGB image (H, W, 3) float32 and the header; with
-    ``layers=True`` also a dict of the other layers (``{"depth": (H, W), "normal": (H, W, 3)...}``)."""
+    ``layers=True`` also a dict of the other layers (``{"depth": (H, W), "normal": (H, W, 3)...}``,
+    the same names, shapes and dtypes as ``render(..., aovs=...)`` returns)."""
     import OpenEXR
 
     with OpenEXR.File(os.fspath(path), separate_channels=True) as f:
@@ -267,12 +280,24 @@ def read_exr(path: str | os.PathLike, layers: bool = False):
     rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], axis=-1)
     if not layers:
         return rgb, header
+    from .aov import AOVS
+
+    out = {}
+    for name, spec in AOVS.items():  # warprt's AOVs, under their standard channel names
+        if all(c in ch for c in spec.exr):
+            if spec.uint:
+                out[name] = (ch[spec.exr[0]].astype(np.int64) - 1).astype(np.int32)
+            elif len(spec.exr) == 1:
+                out[name] = ch[spec.exr[0]]
+            else:
+                out[name] = np.stack([ch[c] for c in spec.exr], axis=-1)
+            for c in spec.exr:
+                del ch[c]
     grouped: dict[str, dict[str, np.ndarray]] = {}
     for name, data in ch.items():
         if "." in name:
             layer, comp = name.rsplit(".", 1)
             grouped.setdefault(layer, {})[comp] = data
-    out = {}
     for layer, comps in grouped.items():
         if set(comps) == {"V"}:
             out[layer] = comps["V"]

@@ -32,7 +32,7 @@ import numpy as np
 import warp as wp
 
 from . import _warp
-from .aov import compute_aovs
+from .aov import check_aov_names, compute_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
 from .errors import RenderError
@@ -67,7 +67,7 @@ class RenderResult:
     device: str
     interrupted: bool = False  # stopped by Ctrl-C
     relative_error: float | None = None  # estimated relative standard error of the mean
-    aovs: dict = field(default_factory=dict)  # requested AOVs (see warprt.aov), from pixel-centre rays
+    aovs: dict = field(default_factory=dict)  # requested AOVs (see warprt.aov), averaged over the image's samples
 
     @property
     def mrays_per_s(self) -> float:
@@ -263,8 +263,9 @@ class Renderer:
                aovs=None, as_warp: bool = False, stop=None, adaptive: bool = False) -> RenderResult:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
         passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
-        (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``object_id``, ``material``,
-        ``motion``) returned in ``RenderResult.aovs``. With ``as_warp=True`` the image stays on the
+        (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``coverage``, ``object_id``,
+        ``material``, ``motion``; averaged over the image's own samples, see ``warprt.aov``)
+        returned in ``RenderResult.aovs``. With ``as_warp=True`` the image and the AOVs stay on the
         device: ``RenderResult.image`` is a (H, W, 3) float32 ``wp.array`` (DLPack-ready for torch
         or JAX), with no copy to the host. ``slices``: interleaved pixel sets per pass on the CPU
         (default ``SLICES_PER_WORKER`` per worker); it changes the speed, never the image. ``stop``: an
@@ -291,11 +292,9 @@ class Renderer:
             raise RenderError(f"target_error must be positive, got {target_error!r}")
         if pass_spp is not None and (not isinstance(pass_spp, (int, np.integer)) or pass_spp < 1):
             raise RenderError(f"pass_spp must be a positive integer, got {pass_spp!r}")
-        if isinstance(aovs, str):
-            aovs = [aovs]
-        check_memory(self.scene.camera.width, self.scene.camera.height, aovs or (), formats=(),
+        aovs = check_aov_names(aovs) if aovs else []
+        check_memory(self.scene.camera.width, self.scene.camera.height, aovs, formats=(),
                      film_on_host=self.device.is_cpu)  # before anything is allocated or compiled
-        aov_maps = compute_aovs(self.built, aovs) if aovs else {}
         workers = default_workers() if workers is None else workers
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
             raise RenderError(f"workers must be a positive integer, got {workers!r}")
@@ -332,7 +331,7 @@ class Renderer:
                     pilot_params = render_params(self.scene, n0, pilot_seed(int(seed)), self.built.features)
                     done, interrupted, _ = self._passes(pilot, pilot_params, n0, ctrl_c, None, None, None, **run)
                     if interrupted:
-                        film = pilot  # stopped during the pilot: its samples are the image
+                        film, params = pilot, pilot_params  # stopped during the pilot: its samples are the image
                     else:
                         counts = adaptive_counts(pilot, done, int(spp))
                         film.set_counts(counts)
@@ -352,6 +351,8 @@ class Renderer:
         if target_error is not None and rel_err is None and done >= 2:
             rel_err = film.relative_error(done)
         image = film.device_image(done) if as_warp else film.image(done)
+        # the AOVs of the samples the image holds (the same camera rays, regenerated)
+        aov_maps = compute_aovs(self.built, aovs, params, film.data, done, as_warp) if aovs else {}
         # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
         spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
         return RenderResult(image=image, spp=spp_done, wall_time=wall, rays=film.rays(),

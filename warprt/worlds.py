@@ -47,6 +47,7 @@ from ._warp import build_once
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .errors import RenderError
 from .film import Film, FilmData
+from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_names, id_map, shaped
 from .integrator import kernels_for
 from .memory import check_memory
 from .records import (
@@ -236,12 +237,30 @@ def batch_kernel_for(F: Features):
     return batch_render
 
 
+@build_once
+def _batch_aov_kernel():
+    """The AOVs of a batch: ``aov.aov_pixel`` on each world's tables (a module of its own)."""
+    aov_pixel = aov_functions()
+
+    @wp.kernel(module="warprt_worlds_aov", enable_backward=False)
+    def batch_aovs(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams, tables: WorldTables,
+                   n_cams: int, height: int, width: int, n: int, idmap: IdMap, out: AovBuffers):
+        g = wp.tid()
+        gy = g / width
+        image = gy / height
+        aov_pixel(world_scene(scene, tables, image / n_cams), cams[image], params, g - gy * width,
+                  gy - image * height, g, n, idmap, out, g)
+
+    return batch_aovs
+
+
 @dataclass
 class BatchResult:
     color: "wp.array"  # (W, C, H, Wpx) vec3 on the device: linear radiance
     spp: int
     wall_time: float  # seconds from the pose update to the image (compiles excluded)
     film: Film  # the batch's accumulation buffers (read only on demand: rays, overflows)
+    aovs: dict  # requested AOVs as (W, C, H, Wpx) wp.arrays on the device (see warprt.aov)
 
     @property
     def rays(self) -> int:
@@ -256,6 +275,10 @@ class BatchResult:
         """The colour as numpy (W, C, H, Wpx, 3) float32: a copy (on the CPU device too, where
         ``color.numpy()`` would be a view of the buffer the next render overwrites)."""
         return np.array(self.color.numpy(), copy=True)
+
+    def aovs_numpy(self) -> dict:
+        """The AOVs as numpy copies: (W, C, H, Wpx[, channels])."""
+        return {name: np.array(a.numpy(), dtype=AOVS[name].out, copy=True) for name, a in self.aovs.items()}
 
     @property
     def mpix_per_s(self) -> float:
@@ -374,6 +397,7 @@ class BatchRenderer:
         self._color = wp.zeros(pixels, dtype=wp.vec3, device=dev)
         self._kernel = batch_kernel_for(self.features)
         self._loaded = False
+        self._aov_bufs = None
         self._pool = None
         self._pool_size = 0
 
@@ -462,11 +486,15 @@ class BatchRenderer:
         if pool is not None:
             pool.shutdown(wait=False)
 
-    def render(self, spp: int = 1, seed: int = 0, *, workers: int | None = None, slices: int | None = None) -> BatchResult:
+    def render(self, spp: int = 1, seed: int = 0, *, aovs=(), workers: int | None = None,
+               slices: int | None = None) -> BatchResult:
         """Render every world and camera with ``spp`` samples per pixel from the current pose
         arrays. The colour stays on the device: ``BatchResult.color`` is a (W, C, H, Wpx) vec3
         ``wp.array`` (``.numpy()`` gives (W, C, H, Wpx, 3) float32; DLPack shares it with torch
-        or JAX). The array is reused by the next render: copy it to keep it."""
+        or JAX); ``aovs`` (names of ``warprt.aov.AOVS``) come in ``BatchResult.aovs`` the same
+        way, averaged over the colour's samples. The arrays are reused by the next render: copy
+        them to keep them."""
+        aovs = check_aov_names(aovs) if aovs else []
         spp = _positive_int(spp, "spp")
         if spp > SPP_LIMIT:
             raise RenderError(f"spp must be <= {SPP_LIMIT}, got {spp}")
@@ -502,10 +530,23 @@ class BatchRenderer:
         run_pass(self._workers(workers), launches, workers, 0, spp)
         wp.launch(_image_kernel(), dim=self._color.shape[0], device=dev,
                   inputs=[self.film.data.accum, 1.0 / float(spp), self._color])
+        shape = (self.worlds, self.cameras, self.height, self.width)
+        aov_maps = {}
+        if aovs:
+            if self._aov_bufs is None:
+                self._aov_bufs = aov_buffers(self._color.shape[0], dev)
+                self._idmap = id_map(self.built)
+                self._aov_loaded = False
+            aov_inputs = [self.scene_data, self._cams, params, self.tables, self.cameras, self.height, self.width, spp,
+                          self._idmap, self._aov_bufs]
+            if not self._aov_loaded:
+                self.counters["compiles"] += 1
+                self._aov_loaded = True
+            wp.launch(_batch_aov_kernel(), dim=self._color.shape[0], device=dev, inputs=aov_inputs)
+            aov_maps = shaped(self._aov_bufs, aovs, shape, as_warp=True)
         wp.synchronize_device(dev)
         wall = _time.perf_counter() - start
-        color = self._color.reshape((self.worlds, self.cameras, self.height, self.width))
-        return BatchResult(color=color, spp=spp, wall_time=wall, film=self.film)
+        return BatchResult(color=self._color.reshape(shape), spp=spp, wall_time=wall, film=self.film, aovs=aov_maps)
 
 
 @build_once
