@@ -31,6 +31,7 @@ from .scene.description import (
 )
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
+from .trace import instance_box_kernel
 
 ANALYTIC_BVH_MIN = 16  # from this many spheres, rectangles and disks on, rays find them through one BVH
 
@@ -97,7 +98,8 @@ class DeviceScene:
                     q0 = t0.quaternion()
                     ins.append(dict(mesh=self.meshes[a].id, pos0=t0.translate, rot0=q0, scl0=t0.scale,
                                     pos1=t1.translate, rot1=same_hemisphere(t1.quaternion(), q0), scl1=t1.scale,
-                                    mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a]))
+                                    mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a],
+                                    olo=(0.0, 0.0, 0.0), ohi=(0.0, 0.0, 0.0), lo=(0.0, 0.0, 0.0), hi=(0.0, 0.0, 0.0)))
                 else:
                     kind = BY_CLASS[type(s)]
                     self.shape_ids.append((kind.tag, len(rows[kind.table])))
@@ -126,6 +128,8 @@ class DeviceScene:
             setattr(d, kind.table, table(kind.record, rows[kind.table], dev))
         d.n_inst = len(ins)
         d.insts = table(InstRec, ins, dev)
+        if ins:  # each instance's object and world boxes (rays that miss the box skip the mesh)
+            wp.launch(instance_box_kernel(), dim=len(ins), inputs=[d.insts], device=dev)
         d.normals = wp.array(np.concatenate(normals) if normals else np.zeros((1, 3), np.float32),
                              dtype=wp.vec3, device=dev)
         d.mats = table(MatRec, [dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
@@ -155,6 +159,7 @@ class DeviceScene:
         else:
             mesh.points.assign(p)
         mesh.refit()
+        wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
         if any(isinstance(s, Mesh) and s.smooth for s in self.scene.shapes):
             faces = mesh.indices.numpy().reshape(-1, 3)
             vn = vertex_normals(mesh.points.numpy(), faces)

@@ -163,3 +163,17 @@ def refine_on_sphere(p: wp.vec3, c: wp.vec3, r: float) -> wp.vec3:
 @wp.func
 def refine_on_plane(p: wp.vec3, p0: wp.vec3, n_unit: wp.vec3) -> wp.vec3:
     return p - n_unit * wp.dot(p - p0, n_unit)
+
+
+@wp.func
+def ray_box(o: wp.vec3, inv_d: wp.vec3, lo: wp.vec3, hi: wp.vec3, t_min: float, t_max: float) -> bool:
+    """Whether the ray o + t·d (``inv_d`` = 1/d per component) meets the box [lo, hi] for some t
+    in [t_min, t_max] (slab test; the far distance is widened by 3 ulps·3 as pbrt-v4 does, and
+    callers pad their boxes, so rounding never culls a real hit)."""
+    t0 = wp.cw_mul(lo - o, inv_d)
+    t1 = wp.cw_mul(hi - o, inv_d)
+    tn = wp.min(t0, t1)
+    tf = wp.max(t0, t1)
+    near = wp.max(wp.max(tn[0], tn[1]), wp.max(tn[2], t_min))
+    far = wp.min(wp.min(tf[0], tf[1]), wp.min(tf[2], t_max))
+    return near <= far * 1.0000004

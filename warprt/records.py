@@ -127,6 +127,10 @@ class InstRec:
     mat: int
     smooth: int
     nrm_off: int  # first vertex normal of the asset in SceneData.normals
+    olo: wp.vec3  # the asset's bounding box in object space
+    ohi: wp.vec3
+    lo: wp.vec3  # the instance's box in world space over the shutter (rays that miss it skip the mesh)
+    hi: wp.vec3
 
 
 @wp.struct

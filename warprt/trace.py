@@ -22,10 +22,10 @@ import warp as wp
 
 from ._warp import build_once
 from .geometry import (
-    SPAWN_REL, abs3, disk_extent, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs,
+    SPAWN_REL, abs3, ray_box, disk_extent, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs,
     quat_rotate_mag, refine_on_plane, refine_on_sphere, spawn_offset, sphere_roots,
 )
-from .records import KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE, Features, SceneData
+from .records import KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE, Features, InstRec, SceneData
 
 TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
@@ -91,6 +91,62 @@ def on_plane(h_in: Hit, p: wp.vec3, p0: wp.vec3, n: wp.vec3, mat: int) -> Hit:
     h.ns = n
     h.mat = mat
     return h
+
+
+@wp.func
+def instance_box(rec: InstRec) -> InstRec:
+    """``rec`` with its world box (``lo``, ``hi``) from its object box (``olo``, ``ohi``) and pose:
+    the transformed box, padded; when the pose at time 1 differs, the boxes of the sphere about
+    the instance origin that holds the object, at both ends (a rotation by slerp keeps every point
+    of the object within it, and the origin moves linearly)."""
+    r = rec
+    c = (rec.olo + rec.ohi) * 0.5
+    e = (rec.ohi - rec.olo) * 0.5
+    m = wp.quat_to_matrix(rec.rot0)
+    se = wp.cw_mul(abs3(rec.scl0), e)
+    ext = wp.vec3(0.0)
+    for k in range(3):
+        ext[k] = wp.abs(m[k, 0]) * se[0] + wp.abs(m[k, 1]) * se[1] + wp.abs(m[k, 2]) * se[2]
+    wc = wp.quat_rotate(rec.rot0, wp.cw_mul(c, rec.scl0)) + rec.pos0
+    lo = wc - ext
+    hi = wc + ext
+    moved = wp.max(abs3(rec.pos1 - rec.pos0)) > 0.0 or wp.max(abs3(rec.scl1 - rec.scl0)) > 0.0
+    for k in range(4):
+        if rec.rot1[k] != rec.rot0[k]:
+            moved = True
+    if moved:
+        far = wp.max(abs3(rec.olo), abs3(rec.ohi))
+        r0 = wp.length(wp.cw_mul(far, abs3(rec.scl0)))
+        r1 = wp.length(wp.cw_mul(far, abs3(rec.scl1)))
+        rr = wp.max(r0, r1)
+        lo = wp.min(rec.pos0, rec.pos1) - wp.vec3(rr, rr, rr)
+        hi = wp.max(rec.pos0, rec.pos1) + wp.vec3(rr, rr, rr)
+    pad = (wp.max(hi - lo) + wp.max(abs3(lo) + abs3(hi))) * 1.0e-6 + 1.0e-30
+    r.lo = lo - wp.vec3(pad, pad, pad)
+    r.hi = hi + wp.vec3(pad, pad, pad)
+    return r
+
+
+@build_once
+def instance_box_kernel():
+    """Object and world boxes of every mesh instance, from its asset's current points (one Warp
+    module, run when a scene is built and when mesh points move)."""
+
+    @wp.kernel(module="warprt_build", enable_backward=False)
+    def instance_boxes(insts: wp.array(dtype=InstRec)):
+        i = wp.tid()
+        rec = insts[i]
+        mesh = wp.mesh_get(rec.mesh)
+        lo = wp.vec3(3.0e38, 3.0e38, 3.0e38)
+        hi = wp.vec3(-3.0e38, -3.0e38, -3.0e38)
+        for k in range(mesh.points.shape[0]):
+            lo = wp.min(lo, mesh.points[k])
+            hi = wp.max(hi, mesh.points[k])
+        rec.olo = lo
+        rec.ohi = hi
+        insts[i] = instance_box(rec)
+
+    return instance_boxes
 
 
 @wp.func
@@ -183,7 +239,10 @@ def make_trace(F: Features) -> SimpleNamespace:
         r = MeshHit()
         r.index = -1
         start = o + d * t_min
+        inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
         for i in range(scene.n_inst):
+            if not ray_box(o, inv_d, scene.insts[i].lo, scene.insts[i].hi, t_min, best):
+                continue  # the ray misses the instance's box before the nearest hit so far
             pose = instance_pose(scene, i, time)
             # (a hit exactly at t_min is outside the open range (t_min, t_max): mesh_first_hit
             # looks beyond it, as it does past a ray's own surface)
@@ -369,7 +428,10 @@ def make_trace(F: Features) -> SimpleNamespace:
     @wp.func
     def mesh_transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
         T = wp.vec3(1.0, 1.0, 1.0)
+        inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
         for i in range(scene.n_inst):
+            if not ray_box(o, inv_d, scene.insts[i].lo, scene.insts[i].hi, 0.0, t_max):
+                continue
             pose = instance_pose(scene, i, time)
             o_obj = to_object(pose, o)
             d_obj = dir_to_object(pose, d)

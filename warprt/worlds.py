@@ -57,6 +57,7 @@ from .records import (
 from .render import SLICES_PER_WORKER, _slices, check_seed, default_workers, run_pass
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
+from .trace import instance_box
 
 BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
 
@@ -134,7 +135,7 @@ def _pose_kernels():
             if wp.dot(rot1, ins.rot0) < 0.0:  # slerp along the shorter arc
                 rot1 = -rot1
             ins.rot1 = rot1
-            tables.insts[w, row] = ins
+            tables.insts[w, row] = instance_box(ins)
 
     @wp.kernel(module="warprt_worlds", enable_backward=False)
     def pose_lights(base: SceneData, positions: wp.array2d(dtype=wp.vec3), tables: WorldTables):
@@ -286,7 +287,7 @@ class BatchResult:
         return w * c * h * x / self.wall_time / 1e6 if self.wall_time > 0 else float("nan")
 
 
-def _camera_quaternion(eye, look_at, up) -> np.ndarray:
+def camera_quaternion(eye, look_at, up) -> np.ndarray:
     """The rotation (x, y, z, w) of the camera frame u, v, w (columns) of ``camera.py``."""
     eye, look_at, up = (np.asarray(x, np.float64) for x in (eye, look_at, up))
     w = eye - look_at
@@ -363,8 +364,8 @@ class BatchRenderer:
         self.light_positions = wp.array(np.repeat(pos[None], W, axis=0), dtype=wp.vec3, device=dev)
         self._n_shapes, self._n_lights = S, len(lights)
         eye1, look1 = cam.pose(1.0)
-        t0 = np.concatenate([cam.eye, _camera_quaternion(cam.eye, cam.look_at, cam.up)])
-        t1 = np.concatenate([eye1, _camera_quaternion(eye1, look1, cam.up)])
+        t0 = np.concatenate([cam.eye, camera_quaternion(cam.eye, cam.look_at, cam.up)])
+        t1 = np.concatenate([eye1, camera_quaternion(eye1, look1, cam.up)])
         self.camera_poses = wp.array(np.tile(t0.astype(np.float32), (W, C, 1)), dtype=wp.transform, device=dev)
         self.camera_poses_end = wp.array(np.tile(t1.astype(np.float32), (W, C, 1)), dtype=wp.transform, device=dev)
         self.fov = wp.array(np.full(C, cam.fov, np.float32), dtype=float, device=dev)

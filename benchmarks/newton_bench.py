@@ -1,0 +1,242 @@
+"""warprt against Newton's SensorTiledCamera on Newton's own kind of scene, side by side.
+
+    python -m benchmarks.newton_bench [--repeats 5] [--quick]
+
+Both render the same ``newton.Model`` (a ground plane and, per world, boxes, spheres and a
+capsule on the ground, one directional light with hard shadows) on the CPU device in one
+process, interleaved, after a warm-up that compiles everything:
+
+* (a) 64 worlds × 2 cameras at 128×128, (b) 1 world × 1 camera at 512×512;
+* Newton: ``SensorTiledCamera.update`` with the HDR colour output (shadows on, as its docs set
+  them up), one Warp launch (a CPU launch runs on one core);
+* warprt: ``newton_bridge.NewtonRenderer`` (a ``BatchRenderer``) at 1 sample per pixel with the
+  ``regular`` sampler (the pixel centre, Newton's own ray), on every core (``workers=2`` here)
+  and on one (``workers=1``), so the ratio per core is in the table too.
+
+Reported: seconds per frame (min and median over the repeats), Mpix/s, warprt / Newton speed;
+agreement where the two models coincide (hit mask, depth, shape index, lit colour: Newton keeps
+0.3 of the light in shadow and adds a hemispheric ambient term, so the colour is compared with
+its ambient off on lit pixels); and the per-step cost of updating poses from ``state.body_q`` on
+the device, with the batch's counters (rebuilds, compiles, host copies) over the steps.
+Figures go to docs/benchmarks/newton.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import time
+import warnings
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+os.environ.setdefault("WARP_CACHE_PATH", os.path.join(ROOT, ".cache", "warp"))
+
+import warp as wp  # noqa: E402
+
+import warprt  # noqa: E402
+
+FOV = 45.0
+
+
+def build_model(worlds: int):
+    import newton
+
+    b = newton.ModelBuilder()
+    b.add_ground_plane(color=(0.8, 0.8, 0.75))
+    sub = newton.ModelBuilder()
+    rng = np.random.default_rng(0)
+    for k in range(4):
+        body = sub.add_body(xform=wp.transform((float(rng.uniform(-1.5, 1.5)), float(rng.uniform(-1.5, 1.5)), 0.3),
+                                               wp.quat_from_axis_angle(wp.vec3(0, 0, 1), float(rng.uniform(0, 3)))))
+        sub.add_shape_box(body, hx=0.3, hy=0.2, hz=0.3, color=(0.9, 0.3 + 0.1 * k, 0.2))
+    for k in range(2):
+        body = sub.add_body(xform=wp.transform((float(rng.uniform(-1.5, 1.5)), float(rng.uniform(-1.5, 1.5)), 0.35),
+                                               wp.quat_identity()))
+        sub.add_shape_sphere(body, radius=0.35, color=(0.2, 0.4, 0.9))
+    body = sub.add_body(xform=wp.transform((0.0, 0.0, 0.25), wp.quat_from_axis_angle(wp.vec3(1, 0, 0), math.pi / 2)))
+    sub.add_shape_capsule(body, radius=0.25, half_height=0.5, color=(0.3, 0.8, 0.3))
+    b.replicate(sub, worlds)
+    return b.finalize(device="cpu")
+
+
+def camera_poses(worlds: int, cameras: int) -> np.ndarray:
+    from warprt.newton_bridge import look_at_pose
+
+    eyes = [(5.0, -5.0, 3.5), (-4.0, -5.5, 2.5)]
+    return np.array([[look_at_pose(eyes[c % 2], (0.0, 0.0, 0.3)) for c in range(cameras)] for _ in range(worlds)])
+
+
+class NewtonSide:
+    def __init__(self, model, cameras, width, height, ambient: bool = True):
+        from newton.sensors import SensorTiledCamera
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            self.sensor = SensorTiledCamera(model)
+        cfg = self.sensor.default_render_config
+        cfg.enable_shadows = True
+        cfg.enable_ambient_lighting = ambient
+        self.sensor.utils.create_default_light(enable_shadows=True)
+        self.rays = self.sensor.utils.compute_camera_rays_pinhole(width, height, camera_fovs=[math.radians(FOV)] * cameras)
+        W = model.world_count
+        poses = camera_poses(W, cameras).transpose(1, 0, 2)  # Newton's (camera, world)
+        self.tf = wp.array(poses.astype(np.float32), dtype=wp.transform, device="cpu")
+        shape = (W, cameras, height, width)
+        self.hdr = wp.zeros(shape, dtype=wp.vec3, device="cpu")
+        self.depth = wp.zeros(shape, dtype=float, device="cpu")
+        self.index = wp.zeros(shape, dtype=wp.uint32, device="cpu")
+        self.model = model
+
+    def frame(self, state, aovs: bool = False):
+        kw = dict(hdr_color_image=self.hdr)
+        if aovs:
+            kw.update(depth_image=self.depth, shape_index_image=self.index)
+        self.sensor.update(state, self.tf, self.rays, **kw)
+        wp.synchronize_device("cpu")
+
+
+class WarprtSide:
+    def __init__(self, model, cameras, width, height, workers):
+        from warprt.newton_bridge import NewtonRenderer
+
+        cam = warprt.Camera(eye=(5, -5, 3.5), look_at=(0, 0, 0.3), up=(0, 0, 1), fov=FOV, width=width, height=height)
+        self.r = NewtonRenderer(model, cameras=cameras, camera=cam,
+                                render=warprt.RenderSettings(sampler="regular", spp=1))
+        self.r.set_camera_poses(camera_poses(model.world_count, cameras))
+        self.workers = workers
+        self.out = None
+
+    def frame(self, state, aovs: bool = False):
+        self.r.update(state)
+        self.out = self.r.batch.render(spp=1, workers=self.workers, aovs=("depth", "object_id") if aovs else ())
+
+
+def timed(fn, state) -> float:
+    t = time.perf_counter()
+    fn(state)
+    return time.perf_counter() - t
+
+
+def agreement(model, cameras, width, height) -> dict:
+    """Where the models coincide: hit mask, depth, shape index, lit colour (Newton's ambient off)."""
+    state = model.state()
+    n = NewtonSide(model, cameras, width, height, ambient=False)
+    n.frame(state, aovs=True)
+    w = WarprtSide(model, cameras, width, height, workers=2)
+    w.frame(state, aovs=True)
+    a = w.out.aovs_numpy()
+    nd, ns, nh = n.depth.numpy(), n.index.numpy(), n.hdr.numpy()
+    hit_n, hit_w = nd > 0, np.isfinite(a["depth"])
+    both = hit_n & hit_w
+    table = w.r.shape_map.newton_shape  # (W, S)
+    oid = np.maximum(a["object_id"], 0)
+    mapped = np.take_along_axis(table[:, None, None, None, :].repeat(cameras, 1).repeat(height, 2).repeat(width, 3),
+                                oid[..., None], axis=-1)[..., 0]
+    img = w.out.numpy().sum(-1)
+    nsum = nh.sum(-1)
+    lit = both & (img > 1e-4) & (nsum > 1e-4)
+    ratio = img[lit] / nsum[lit]
+    return {
+        "pixels": int(hit_n.size),
+        "hit_mask_agree": float(np.mean(hit_n == hit_w)),
+        "depth_rel_err_median": float(np.median(np.abs(nd[both] - a["depth"][both]) / nd[both])),
+        "depth_within_1e-4": float(np.mean(np.abs(nd[both] - a["depth"][both]) <= 1e-4 * nd[both])),
+        "shape_index_agree": float(np.mean(mapped[both] == ns[both])),
+        "lit_colour_ratio_median": float(np.median(ratio)),
+        "lit_colour_within_1e-3": float(np.mean(np.abs(ratio - 1) < 1e-3)),
+        # warprt's shadow is 0 light, Newton's keeps 0.3 of it: a shadowed pixel is where
+        # warprt is dark and Newton is not; the two masks must coincide
+        "shadow_mask_agree": float(np.mean((img[both] <= 1e-6) == (nsum[both] <= 0.31 * np.maximum(
+            img[both], 0) + 1e-6) | (img[both] <= 1e-6))),
+    }
+
+
+def pose_update_cost(model, cameras, width, height, steps: int = 50) -> dict:
+    import newton
+
+    w = WarprtSide(model, cameras, width, height, workers=2)
+    state = model.state()
+    w.frame(state)
+    before = dict(w.r.counters)
+    # a real simulation step between frames: Newton's semi-implicit Euler solver
+    solver = newton.solvers.SolverSemiImplicit(model)
+    s0, s1 = model.state(), model.state()
+    control = model.control()
+    times = []
+    for _ in range(steps):
+        s0.clear_forces()
+        solver.step(s0, s1, control, None, 1.0 / 240.0)
+        s0, s1 = s1, s0
+        t = time.perf_counter()
+        w.r.update(s0)
+        wp.synchronize_device("cpu")
+        times.append(time.perf_counter() - t)
+    after = dict(w.r.counters)
+    return {"update_ms_median": 1e3 * statistics.median(times), "update_ms_min": 1e3 * min(times),
+            "counters_before": before, "counters_after": after, "steps": steps}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--quick", action="store_true", help="small sizes (a smoke test of the harness)")
+    ap.add_argument("--out", default=os.path.join(ROOT, "docs", "benchmarks", "newton.json"))
+    args = ap.parse_args(argv)
+    try:
+        import newton  # noqa: F401
+    except ImportError:
+        print("Newton is not installed: pip install 'warprt[newton]'", file=sys.stderr)
+        return 2
+    cases = [("a", 64, 2, 128, 128), ("b", 1, 1, 512, 512)]
+    if args.quick:
+        cases = [("a", 4, 2, 32, 32), ("b", 1, 1, 64, 64)]
+    results = {"device": "cpu", "cores": os.cpu_count(), "repeats": args.repeats, "cases": {}}
+    for key, W, C, H, X in cases:
+        model = build_model(W)
+        state = model.state()
+        sides = {"newton": NewtonSide(model, C, X, H), "warprt": WarprtSide(model, C, X, H, workers=2),
+                 "warprt_1core": WarprtSide(model, C, X, H, workers=1)}
+        for s in sides.values():  # warm-up: compiles and first loads
+            s.frame(state)
+        times = {k: [] for k in sides}
+        for _ in range(args.repeats):
+            for k, s in sides.items():
+                times[k].append(timed(s.frame, state))
+        pix = W * C * H * X
+        case = {"worlds": W, "cameras": C, "width": X, "height": H}
+        for k, t in times.items():
+            case[k] = {"s_min": min(t), "s_median": statistics.median(t), "mpix_s": pix / min(t) / 1e6,
+                       "mpix_s_median": pix / statistics.median(t) / 1e6}
+        case["speed_ratio"] = case["warprt"]["mpix_s"] / case["newton"]["mpix_s"]
+        case["speed_ratio_median"] = case["warprt"]["mpix_s_median"] / case["newton"]["mpix_s_median"]
+        ratios = [tn / tw for tn, tw in zip(times["newton"], times["warprt"])]
+        case["speed_ratio_spread"] = [min(ratios), max(ratios)]
+        case["speed_ratio_1core"] = case["warprt_1core"]["mpix_s"] / case["newton"]["mpix_s"]
+        case["agreement"] = agreement(model, C, X, H)
+        if key == "a":
+            case["pose_update"] = pose_update_cost(model, C, X, H, steps=10 if args.quick else 50)
+        results["cases"][key] = case
+        print(f"({key}) {W} worlds x {C} cameras at {X}x{H}: Newton {case['newton']['mpix_s']:.2f} Mpix/s, "
+              f"warprt {case['warprt']['mpix_s']:.2f} (2 threads), {case['warprt_1core']['mpix_s']:.2f} (1); "
+              f"warprt/Newton {case['speed_ratio']:.2f}x (per-repeat {ratios and min(ratios):.2f}-"
+              f"{max(ratios):.2f}), per core {case['speed_ratio_1core']:.2f}x")
+        print(f"    agreement: {json.dumps(case['agreement'])}")
+        if "pose_update" in case:
+            print(f"    pose update from body_q: {case['pose_update']['update_ms_median']:.3f} ms median; counters "
+                  f"{case['pose_update']['counters_before']} -> {case['pose_update']['counters_after']}")
+    if not args.quick:
+        os.makedirs(os.path.dirname(args.out), exist_ok=True)
+        with open(args.out, "w") as f:
+            json.dump(results, f, indent=1)
+        print(f"wrote {os.path.relpath(args.out, ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,211 @@
+"""Render a Newton simulation (``newton.Model`` / ``newton.State``) with warprt, every world at once.
+
+``pip install 'warprt[newton]'``. Importing warprt never imports Newton; this module does.
+
+:func:`scene_from_model` turns the model's shapes into one warprt scene structure: the shapes of
+world 0 (every world of a replicated model holds the same shapes) plus the global shapes (world
+-1, e.g. the ground), each described in its own local frame, with a Lambert material of its
+colour (Newton's colours are display sRGB; warprt shades in linear RGB, so they are converted as
+Newton's own renderer does). :class:`NewtonRenderer` builds a :class:`warprt.BatchRenderer` over
+``model.world_count`` worlds and, on every :meth:`~NewtonRenderer.update`, launches one kernel
+that writes each shape's world pose ``body_q[body] * shape_transform`` straight into the batch's
+``shape_poses``: no host copy, no rebuild, no recompile.
+
+Shape kinds: spheres and planes stay analytic (a plane with a finite width/length becomes a
+rectangle); boxes become 12-triangle meshes (exact); capsules, cylinders, cones and ellipsoids
+become triangle meshes (``trimesh.creation``, ``TESSELLATION`` below: their silhouettes differ
+from the analytic shapes by up to about 0.3% of their radius); meshes keep their triangles
+(times their scale). Height fields, SDFs, Gaussians and particles are refused with the shape's
+index; invisible shapes (no ``VISIBLE`` flag) are skipped as Newton's camera skips them.
+Newton is z-up: cameras are placed with ``camera_poses`` (camera to world, looking along local
+-z, +y up), like Newton's own camera transforms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .errors import SceneError
+from .scene.description import Camera, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere
+from .worlds import BatchRenderer, camera_quaternion
+
+TESSELLATION = dict(sphere_subdivisions=3, cylinder_sections=64)  # meshes for curved Newton shapes
+
+# newton.GeoType values (checked against the installed Newton on import of the model)
+_PLANE, _HFIELD, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH, _CONE, _CONVEX = 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
+_VISIBLE = 1  # newton.ShapeFlags.VISIBLE
+
+
+def srgb_to_linear(c) -> tuple:
+    c = np.asarray(c, np.float64)
+    return tuple(float(x) for x in np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4))
+
+
+def _check_newton_enums() -> None:
+    import newton
+
+    expected = dict(PLANE=_PLANE, HFIELD=_HFIELD, SPHERE=_SPHERE, CAPSULE=_CAPSULE, ELLIPSOID=_ELLIPSOID,
+                    CYLINDER=_CYLINDER, BOX=_BOX, MESH=_MESH, CONE=_CONE, CONVEX_MESH=_CONVEX)
+    for name, value in expected.items():
+        if int(getattr(newton.GeoType, name)) != value:
+            raise SceneError(f"this Newton's GeoType.{name} is {int(getattr(newton.GeoType, name))}, warprt "
+                             f"expects {value}: install newton==1.8.0", "model")
+    if int(newton.ShapeFlags.VISIBLE) != _VISIBLE:
+        raise SceneError("this Newton's ShapeFlags.VISIBLE differs from 1.8's", "model")
+
+
+def _mesh_of(kind: int, scale, source, index: int):
+    """(vertices, faces) of a Newton shape in its local frame."""
+    import trimesh
+
+    sx, sy, sz = (float(x) for x in scale)
+    if kind == _BOX:
+        m = trimesh.creation.box(extents=(2 * sx, 2 * sy, 2 * sz))
+    elif kind == _CAPSULE:  # radius sx, half height sy, along local z
+        m = trimesh.creation.capsule(height=2 * sy, radius=sx, count=[TESSELLATION["cylinder_sections"]] * 2)
+    elif kind == _CYLINDER:
+        m = trimesh.creation.cylinder(radius=sx, height=2 * sy, sections=TESSELLATION["cylinder_sections"])
+    elif kind == _CONE:
+        m = trimesh.creation.cone(radius=sx, height=2 * sy, sections=TESSELLATION["cylinder_sections"])
+        m.apply_translation((0, 0, -sy))  # Newton's cone is centred on its origin
+    elif kind == _ELLIPSOID:
+        m = trimesh.creation.icosphere(subdivisions=TESSELLATION["sphere_subdivisions"], radius=1.0)
+        m.apply_scale((sx, sy, sz))
+    elif kind in (_MESH, _CONVEX):
+        if source is None or not hasattr(source, "vertices"):
+            raise SceneError("a mesh shape without vertices", f"model.shapes[{index}]")
+        v = np.asarray(source.vertices, np.float64) * np.array([sx, sy, sz])
+        f = np.asarray(source.indices, np.int64).reshape(-1, 3)
+        return v, f
+    else:
+        raise SceneError(f"shape kind {kind} (height fields, SDFs, Gaussians) cannot be rendered by warprt",
+                         f"model.shapes[{index}]")
+    return np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64)
+
+
+@dataclass(frozen=True)
+class ShapeMap:
+    """Which Newton shape each warprt shape is, in every world: ``newton_shape[w, j]``."""
+
+    newton_shape: np.ndarray  # (W, S) int32
+    global_shapes: int  # the first this many warprt shapes are Newton's global shapes (world -1)
+
+
+def _warprt_shape(model, s: int, material: str):
+    kind = int(model.shape_type.numpy()[s])
+    scale = model.shape_scale.numpy()[s]
+    if kind == _SPHERE:
+        return Sphere(center=(0.0, 0.0, 0.0), radius=float(scale[0]), material=material)
+    if kind == _PLANE:
+        w, h = float(scale[0]), float(scale[1])
+        if w > 0 and h > 0:  # a finite plane: width × length about the origin, in local x and y
+            return Rectangle(corner=(-w, -h, 0.0), edge1=(2 * w, 0.0, 0.0), edge2=(0.0, 2 * h, 0.0), material=material)
+        return Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), material=material)
+    v, f = _mesh_of(kind, scale, model.shape_source[s], s)
+    return Mesh(vertices=v, faces=f, material=material)
+
+
+def scene_from_model(model, camera: Camera | None = None, lights=None, ambient=0.0, background=(0.0, 0.0, 0.0),
+                     render: RenderSettings | None = None) -> tuple[Scene, ShapeMap]:
+    """A warprt scene of one Newton world (plus the global shapes) and the map from its shapes to
+    Newton's shapes in every world. ``lights`` default to Newton's default light (directional,
+    along (-1, 1, -1)/√3, intensity 1)."""
+    _check_newton_enums()
+    types = model.shape_type.numpy()
+    worlds = model.shape_world.numpy()
+    flags = model.shape_flags.numpy()
+    colors = model.shape_color.numpy() if model.shape_color is not None else np.full((len(types), 3), 0.7)
+    visible = (flags & _VISIBLE) != 0
+    n_worlds = max(int(model.world_count), 1)
+    global_shapes = [s for s in range(len(types)) if worlds[s] < 0 and visible[s]]
+    per_world = [[s for s in range(len(types)) if worlds[s] == w and visible[s]] for w in range(n_worlds)]
+    for w in range(1, n_worlds):
+        if [int(types[s]) for s in per_world[w]] != [int(types[s]) for s in per_world[0]] or not np.allclose(
+                model.shape_scale.numpy()[per_world[w]], model.shape_scale.numpy()[per_world[0]]):
+            raise SceneError(f"world {w} holds other shapes than world 0; warprt renders worlds of one structure "
+                             "(build them with ModelBuilder.replicate)", "model")
+    shapes, materials = [], {}
+    for j, s in enumerate(global_shapes + per_world[0]):
+        name = f"shape{j}"
+        materials[name] = Material(kd=srgb_to_linear(colors[s]), ka=0.0)
+        shapes.append(_warprt_shape(model, s, name))
+    table = np.array([global_shapes + per_world[w] for w in range(n_worlds)], np.int32).reshape(n_worlds, len(shapes))
+    scene = Scene(camera=camera or Camera(eye=(4, -4, 3), look_at=(0, 0, 0.5), up=(0, 0, 1), fov=45, width=128,
+                                          height=128),
+                  shapes=tuple(shapes), materials=materials,
+                  lights=tuple(lights) if lights is not None else (
+                      DirectionalLight(direction=(-1, 1, -1), intensity=1.0),),
+                  ambient=ambient, background=background, render=render or RenderSettings(spp=1))
+    return scene, ShapeMap(newton_shape=table, global_shapes=len(global_shapes))
+
+
+@wp.kernel(module="warprt_newton", enable_backward=False)
+def _shape_poses(newton_shape: wp.array2d(dtype=wp.int32), shape_body: wp.array(dtype=wp.int32),
+                 shape_transform: wp.array(dtype=wp.transform), body_q: wp.array(dtype=wp.transform),
+                 poses: wp.array2d(dtype=wp.transform)):
+    w, j = wp.tid()
+    s = newton_shape[w, j]
+    X = shape_transform[s]
+    b = shape_body[s]
+    if b >= 0:
+        X = wp.transform_multiply(body_q[b], X)
+    poses[w, j] = X
+
+
+class NewtonRenderer:
+    """Every world of a Newton model through ``cameras`` cameras each, from the simulation state.
+
+    ``camera``: the warprt camera giving image size, field of view, aperture, focus and shutter
+    (its pose is the default of every camera); ``lights``/``ambient``/``background`` as in
+    :func:`scene_from_model`; ``motion_blur=True`` blurs between the previous and the current
+    state (call :meth:`update` every step). Soft shadows come from area lights in ``lights``,
+    depth of field from the camera's aperture.
+    """
+
+    def __init__(self, model, cameras: int = 1, camera: Camera | None = None, lights=None, ambient=0.0,
+                 background=(0.0, 0.0, 0.0), render: RenderSettings | None = None, motion_blur: bool = False,
+                 device: str | None = None):
+        self.model = model
+        self.scene, self.shape_map = scene_from_model(model, camera, lights, ambient, background, render)
+        self.batch = BatchRenderer(self.scene, worlds=self.shape_map.newton_shape.shape[0], cameras=cameras,
+                                   device=device if device is not None else str(model.device),
+                                   motion_blur=motion_blur)
+        dev = self.batch.device
+        self._map = wp.array(self.shape_map.newton_shape, dtype=wp.int32, device=dev)
+        self._updates = 0
+
+    @property
+    def counters(self) -> dict:
+        return self.batch.counters
+
+    def update(self, state) -> None:
+        """Shape poses from ``state.body_q`` (on the device; the previous ones become the
+        shutter-open poses when motion blur is on)."""
+        b = self.batch
+        if b.motion_blur:
+            wp.copy(b.shape_poses, b.shape_poses_end if self._updates else b.shape_poses)
+            target = b.shape_poses_end
+        else:
+            target = b.shape_poses
+        if self.scene.shapes:
+            wp.launch(_shape_poses, dim=self._map.shape, device=b.device,
+                      inputs=[self._map, self.model.shape_body, self.model.shape_transform, state.body_q, target])
+        if b.motion_blur and not self._updates:
+            wp.copy(b.shape_poses, target)
+        self._updates += 1
+
+    def set_camera_poses(self, poses, end=None) -> None:
+        """(W, C) camera-to-world poses (see :meth:`warprt.BatchRenderer.set_camera_poses`)."""
+        self.batch.set_camera_poses(poses, end)
+
+    def render(self, spp: int | None = None, seed: int = 0, aovs=()):
+        return self.batch.render(spp=spp or self.scene.render.spp, seed=seed, aovs=aovs)
+
+
+def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """A camera-to-world pose (x, y, z, qx, qy, qz, qw) at ``eye`` looking at ``target``."""
+    q = camera_quaternion(eye, target, up)
+    return np.concatenate([np.asarray(eye, np.float64), q / np.linalg.norm(q)])
