@@ -5,13 +5,14 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
 
-.PHONY: render test mutate bench bench-peers install clean
+.PHONY: render test mutate bench bench-peers bench-newton install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[test,charts]"
 	$(PY) -m pip install --quiet -e ".[ray]" || echo "note: Ray could not be installed here; the Ray batch test will skip"
+	$(PY) -m pip install --quiet -e ".[newton]" || echo "note: Newton could not be installed here; the Newton bridge tests will skip"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -36,6 +37,10 @@ bench: $(STAMP)
 bench-peers: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[peers]"
 	$(PY) -m benchmarks.peers $(PEERS_ARGS)
+
+# warprt against Newton's SensorTiledCamera on Newton's kind of scene (the optional `newton` extra)
+bench-newton: $(STAMP)
+	$(PY) -m benchmarks.newton_bench $(NEWTON_ARGS)
 
 clean:
 	rm -rf out .cache .pytest_cache

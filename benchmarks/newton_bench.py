@@ -97,6 +97,7 @@ class NewtonSide:
         kw = dict(hdr_color_image=self.hdr)
         if aovs:
             kw.update(depth_image=self.depth, shape_index_image=self.index)
+        self.model.bvh_refit_shapes(state)  # as warprt's update(state): the frame follows the state
         self.sensor.update(state, self.tf, self.rays, **kw)
         wp.synchronize_device("cpu")
 

@@ -91,7 +91,7 @@ def main(argv=None) -> int:
             for c in range(images.shape[1]):
                 warprt.save_image(images[w, c], os.path.join(args.out_dir, f"w{w}_c{c}_{frame:04d}.png"))
     print(f"{args.steps} frames of {args.worlds} worlds x 2 cameras at {args.width}x{args.height}, {args.spp} spp")
-    print(f"counters after the first frame {first}, after the last {renderer.counters}")
+    print(f"counters after the first frame {first} after the last {renderer.counters}")
     print(f"wrote {args.out_dir}")
     return 0
 

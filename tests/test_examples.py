@@ -65,7 +65,7 @@ def test_readme_quick_start_names_the_two_commands():
     assert "make test" in quick
 
 
-@pytest.mark.parametrize("name", ["build_scene.py", "ray_queries.py"])
+@pytest.mark.parametrize("name", ["build_scene.py", "ray_queries.py", "newton_sim.py"])
 def test_examples_document_their_small_size_flags(name):
     proc = subprocess.run([sys.executable, str(EXAMPLES / name), "--help"], capture_output=True, text=True,
                           timeout=120)
@@ -110,3 +110,15 @@ def test_make_doc_images_documents_its_quick_options():
     bad = subprocess.run([sys.executable, str(EXAMPLES / "make_doc_images.py"), "--scale", "2"], capture_output=True,
                          text=True, timeout=120)
     assert bad.returncode == 2 and "--scale must be in (0, 1]" in bad.stderr
+
+
+def test_newton_sim_example_writes_a_sequence_per_world_and_camera(tmp_path):
+    pytest.importorskip("newton")
+    proc = run_example("newton_sim.py", tmp_path, "--spp", "1", "--steps", "2", "--worlds", "2")
+    names = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert names == [f"w{w}_c{c}_{f:04d}.png" for w in range(2) for c in range(2) for f in range(2)]
+    assert png_size(tmp_path / names[0]) == (W, H)
+    # the counters line: nothing rebuilt, compiled or copied after the first frame
+    line = next(l for l in proc.stdout.splitlines() if l.startswith("counters"))
+    first, last = line.split(" after the last ")
+    assert first.split("first frame ")[1].rstrip(",") == last
