@@ -142,8 +142,11 @@ def test_keyframes_interpolate_linearly():
     scene = _animated()
     f2 = frame_scene(scene, 2)  # t = 0.5 s, end pose at 0.75 s
     assert f2.shapes[0].center == pytest.approx((0.5, 0, 0)) and f2.shapes[0].center_end == pytest.approx((0.75, 0, 0))
-    assert f2.shapes[1].transform.rotate == pytest.approx((0, 45, 0))
-    assert f2.shapes[1].transform_end.rotate == pytest.approx((0, 67.5, 0))
+    # rotations are slerped (a quaternion); about one axis that is the Euler angle in proportion to time
+    rot = warprt.Transform(rotate=(0, 45, 0)).rotation_matrix()
+    np.testing.assert_allclose(f2.shapes[1].transform.rotation_matrix(), rot, atol=1e-12)
+    rot_end = warprt.Transform(rotate=(0, 67.5, 0)).rotation_matrix()
+    np.testing.assert_allclose(f2.shapes[1].transform_end.rotation_matrix(), rot_end, atol=1e-12)
     assert frame_scene(scene, 10).shapes[0].center == pytest.approx((1, 0, 0))  # clamped after the last key
 
 

@@ -15,6 +15,7 @@ from .errors import RenderError, SceneError
 from .image import check_output, read_exr, save_image
 from .query import camera_rays, trace_rays
 from . import animation
+from .assets import load_assets
 from .render import Renderer, RenderResult, render
 from .worlds import BatchRenderer, BatchResult
 from .scene import (
@@ -28,5 +29,5 @@ __all__ = [
     "Animation", "BatchRenderer", "BatchResult", "Camera", "DirectionalLight", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
     "SphereLight", "Transform", "load_scene", "parse_scene", "check_output", "read_exr", "render", "save_image",
-    "scene_from_string", "camera_rays", "trace_rays",
+    "scene_from_string", "camera_rays", "trace_rays", "load_assets",
 ]

@@ -1,8 +1,11 @@
 """Animation: keyframed scenes, frame by frame, without kernel recompiles or BVH rebuilds.
 
 A scene's ``[animation]`` table gives ``frames`` and ``fps``; frame f shows time f / fps. Spheres
-(``center``), meshes (``translate``/``rotate``/``scale``) and the camera (``eye``/``look_at``)
-may carry ``keyframes``: their values are interpolated linearly in time (clamped at the ends).
+(``center``), meshes (``translate``/``rotate`` or ``quaternion``/``scale``) and the camera
+(``eye``/``look_at``) may carry ``keyframes``: positions and scales are interpolated linearly in
+time, rotations by slerp (clamped at the ends; Euler keys 180 degrees or more apart get
+intermediate keys so that they turn the way their angles say, see
+:func:`warprt.scene.transform.rotation_keys`).
 ``frame_scene(scene, f)`` gives the plain scene of frame f, with the pose at the next frame's
 time as the motion-blur end pose, so the camera shutter ([0, 1] by default) spans one frame.
 
@@ -24,7 +27,7 @@ from .errors import FramesInterrupted, RenderError
 from .image import check_output, save_image
 from .render import Renderer, check_seed
 from .scene.description import Camera, Mesh, Scene, Sphere
-from .scene.transform import Transform
+from .scene.transform import Transform, interpolate_rotation, rotation_keys
 
 
 def _interp(keyframes, t: float, name: str, default):
@@ -42,11 +45,23 @@ def _interp(keyframes, t: float, name: str, default):
     return default
 
 
+def _rotation_keys(m: Mesh) -> list:
+    """The mesh's rotation keys as (time, quaternion), Euler keys turned into quaternions (with
+    the keys rotation_keys inserts between Euler keys 180 degrees or more apart)."""
+    keys = [(k["time"], ("quaternion", k["quaternion"]) if "quaternion" in k else ("rotate", k["rotate"]))
+            for k in m.keyframes if "rotate" in k or "quaternion" in k]
+    return rotation_keys(keys)
+
+
 def _mesh_transform(m: Mesh, t: float) -> Transform:
     base = m.transform or Transform()
-    return Transform(translate=_interp(m.keyframes, t, "translate", base.translate),
-                     rotate=_interp(m.keyframes, t, "rotate", base.rotate),
-                     scale=_interp(m.keyframes, t, "scale", base.scale))
+    translate = _interp(m.keyframes, t, "translate", base.translate)
+    scale = _interp(m.keyframes, t, "scale", base.scale)
+    keys = _rotation_keys(m)
+    if not keys:  # no rotation keys: the mesh keeps its own rotation, however it was given
+        return Transform(translate=translate, rotate=base.rotate, scale=scale,
+                         rotation_quaternion=base.rotation_quaternion)
+    return Transform(translate=translate, scale=scale, rotation_quaternion=tuple(interpolate_rotation(keys, t)))
 
 
 def frame_scene(scene: Scene, frame: int) -> Scene:

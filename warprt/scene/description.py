@@ -297,7 +297,10 @@ class Disk:
 @checked_keywords
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """A triangle mesh from a file (OBJ/PLY/STL/GLB/OFF through trimesh) or inline arrays.
+    """A triangle mesh from a file (OBJ/PLY/STL/GLB/OFF through trimesh), inline arrays, or a
+    ``trimesh.Trimesh`` (``Mesh(tm, material=...)``: its arrays become inline arrays). A file with
+    several objects is flattened into one mesh with one material; ``warprt.load_assets`` keeps
+    them apart.
 
     Assets are shared: meshes naming the same file (or the same arrays) use one ``wp.Mesh`` and
     differ only by their instance transform. ``smooth`` interpolates vertex normals for shading.
@@ -311,10 +314,23 @@ class Mesh:
     transform_end: Transform | None = None  # instance transform at time 1 (motion blur)
     smooth: bool = False
     degenerate: str = "error"  # "error" or "drop": what to do with zero-area faces
-    keyframes: tuple = ()  # animation: [{time, translate, rotate, scale}, ...] (instance transform)
+    keyframes: tuple = ()  # animation: [{time, translate, rotate or quaternion, scale}, ...] (instance transform)
 
     def __post_init__(self):
-        set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("translate", "rotate", "scale")))
+        set_field(self, "keyframes",
+                  as_keyframes(self.keyframes, "keyframes", ("translate", "rotate", "quaternion", "scale")))
+        # a trimesh.Trimesh, given first (Mesh(tm, ...)) or as vertices, becomes inline arrays
+        for name in ("file", "vertices"):
+            tm = getattr(self, name)
+            if _is_trimesh(tm):
+                if name == "file" and self.vertices is not None:
+                    raise SceneError("give either a trimesh.Trimesh or vertices, not both", "vertices")
+                if self.faces is not None:
+                    raise SceneError("a trimesh.Trimesh brings its own faces: drop faces", "faces")
+                set_field(self, "file", None)
+                set_field(self, "vertices", np.asarray(tm.vertices))
+                set_field(self, "faces", np.asarray(tm.faces))
+                break
         if (self.file is None) == (self.vertices is None):
             raise SceneError("give either file or vertices (with faces)", "file")
         if self.file is not None and (not isinstance(self.file, str) or not self.file):
@@ -332,9 +348,33 @@ class Mesh:
             set_field(self, "vertices", v)
             set_field(self, "faces", f)
 
+    @classmethod
+    def from_trimesh(cls, mesh: Any, **fields: Any) -> "Mesh":
+        """A mesh shape from a ``trimesh.Trimesh`` (its vertices and faces, checked like inline
+        arrays; its visuals are not read: give ``material``). ``Mesh(trimesh_obj, ...)`` is the same."""
+        if not _is_trimesh(mesh):
+            raise SceneError(f"expected a trimesh.Trimesh, got {type(mesh).__name__}", "mesh")
+        return cls(vertices=mesh, **fields)
+
     @property
     def moves(self) -> bool:
         return self.transform_end is not None and self.transform_end != (self.transform or Transform())
+
+
+def _is_trimesh(x: Any) -> bool:
+    """A ``trimesh.Trimesh`` (checked without importing trimesh for scenes that do not use it); a
+    ``trimesh.Scene`` (several meshes, several materials) raises, pointing to ``load_assets``."""
+    module = type(x).__module__ or ""
+    if not module.startswith("trimesh"):
+        return False
+    import trimesh
+
+    if isinstance(x, trimesh.Scene):
+        raise SceneError("a trimesh.Scene holds several meshes and materials: load it with "
+                         "warprt.load_assets(scene), which gives one shape per node", "file")
+    if not isinstance(x, trimesh.Trimesh):
+        raise SceneError(f"a {type(x).__name__} is not a triangle mesh (only trimesh.Trimesh is)", "file")
+    return True
 
 
 def validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -30,6 +30,35 @@ from ..errors import SceneError
 from .description import LIGHT_TYPES, SHAPE_TYPES, Animation, Camera, Material, RenderSettings, Scene
 TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights", "animation"}
 WORLD_FIELDS = {"ambient", "background"}
+# [[shapes]] type = "assets": a glTF/GLB file (or any multi-object file trimesh reads) loaded by
+# warprt.assets.load_assets into one mesh shape per node, with its materials
+ASSET_FIELDS = ("file", "transform", "smooth", "material", "prefix", "degenerate", "unsupported")
+
+
+def _assets(item: Mapping[str, Any], where: str, base_dir: str, materials: dict) -> list[Any]:
+    """Expand an ``assets`` entry into its mesh shapes; its materials go into ``materials``."""
+    from ..assets import load_assets
+
+    unknown = sorted(set(item) - set(ASSET_FIELDS) - {"type"})
+    if unknown:
+        raise SceneError(f"unknown field(s) {', '.join(unknown)}; expected some of: {', '.join(ASSET_FIELDS)}", where)
+    file = item.get("file")
+    if not isinstance(file, str) or not file:
+        raise SceneError(f"expected the path of a glTF/GLB file, got {file!r}", f"{where}.file")
+    path = os.path.join(base_dir, file)
+    if not os.path.isfile(path):
+        raise SceneError(f"asset file not found: {file!r} (looked in {os.path.abspath(path)!r})", f"{where}.file")
+    kwargs = {k: item[k] for k in ASSET_FIELDS if k in item and k != "file"}
+    try:
+        shapes, mats = load_assets(os.path.abspath(path), **kwargs)
+    except SceneError as e:
+        raise e.within(where) from None
+    for name, m in mats.items():
+        if name in materials and materials[name] != m:
+            raise SceneError(f"the asset's material {name!r} clashes with another material of that name; set "
+                             f"prefix", f"{where}.prefix")
+        materials[name] = m
+    return shapes
 
 
 def _make(cls: type, table: Any, where: str, skip: tuple[str, ...] = ()) -> Any:
@@ -46,7 +75,8 @@ def _make(cls: type, table: Any, where: str, skip: tuple[str, ...] = ()) -> Any:
         raise e.within(where) from None
 
 
-def _typed_list(items: Any, kinds: dict[str, type], where: str, base_dir: str) -> list[Any]:
+def _typed_list(items: Any, kinds: dict[str, type], where: str, base_dir: str,
+                asset_materials: dict | None = None) -> list[Any]:
     if not isinstance(items, list):
         raise SceneError(f"expected an array of tables ([[{where}]]), got {type(items).__name__}", where)
     out = []
@@ -55,8 +85,12 @@ def _typed_list(items: Any, kinds: dict[str, type], where: str, base_dir: str) -
         if not isinstance(item, Mapping):
             raise SceneError(f"expected a table, got {item!r}", loc)
         kind = item.get("type")
+        if asset_materials is not None and kind == "assets":
+            out.extend(_assets(item, loc, base_dir, asset_materials))
+            continue
         if not isinstance(kind, str) or kind not in kinds:
-            raise SceneError(f"type must be one of {', '.join(repr(k) for k in kinds)}, got {kind!r}", f"{loc}.type")
+            names = [*kinds, "assets"] if asset_materials is not None else list(kinds)
+            raise SceneError(f"type must be one of {', '.join(repr(k) for k in names)}, got {kind!r}", f"{loc}.type")
         item = dict(item)
         if kind == "mesh" and kinds is SHAPE_TYPES and isinstance(item.get("file"), str):
             path = os.path.join(base_dir, item["file"])
@@ -88,7 +122,13 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
         if not isinstance(mats_in, Mapping):
             raise SceneError("expected tables [materials.NAME]", "materials")
         materials = {name: _make(Material, m, f"materials.{name}") for name, m in mats_in.items()}
-        shapes = _typed_list(data.get("shapes", []), SHAPE_TYPES, "shapes", base_dir)
+        asset_materials: dict = {}
+        shapes = _typed_list(data.get("shapes", []), SHAPE_TYPES, "shapes", base_dir, asset_materials)
+        for name, m in asset_materials.items():
+            if name in materials:
+                raise SceneError(f"an asset's material {name!r} clashes with [materials.{name}]; set the asset's "
+                                 f"prefix", "shapes")
+            materials[name] = m
         lights = _typed_list(data.get("lights", []), LIGHT_TYPES, "lights", base_dir)
         kwargs = {k: world[k] for k in WORLD_FIELDS if k in world}
         try:

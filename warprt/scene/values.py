@@ -131,8 +131,9 @@ def norm(v: Sequence[float]) -> float:
 
 def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
     """Keyframes: a list of tables, each with ``time`` (seconds, strictly increasing) and some of
-    ``allowed`` (vectors; ``scale`` may be one number). Values missing from a key are taken
-    from the object's own fields."""
+    ``allowed`` (vectors; ``scale`` may be one number; ``quaternion`` is four numbers (x, y, z, w)
+    and excludes ``rotate`` in the same key). Values missing from a key are taken from the
+    object's own fields."""
     if x is None or (isinstance(x, (list, tuple)) and len(x) == 0):
         return ()
     if not isinstance(x, (list, tuple)):
@@ -158,6 +159,14 @@ def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
                 v = key[f]
                 if f == "scale" and isinstance(v, (int, float)) and not isinstance(v, bool):
                     v = (v, v, v)
+                if f == "quaternion":
+                    from .transform import as_quaternion
+
+                    if "rotate" in key:
+                        raise SceneError("give the rotation once: rotate (Euler angles) or quaternion, not both",
+                                         f"{where}.quaternion")
+                    k[f] = as_quaternion(v, f"{where}.{f}")
+                    continue
                 k[f] = as_vec3(v, f"{where}.{f}")
         out.append(k)
     return tuple(out)
