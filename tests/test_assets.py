@@ -17,7 +17,7 @@ from trimesh.visual.material import PBRMaterial
 import warprt
 from warprt import Material, Mesh, SceneError, Transform
 from warprt.animation import frame_scene
-from warprt.assets import GLOSSY_LIMIT, load_assets, pbr_material
+from warprt.scene.assets import GLOSSY_LIMIT, load_assets, pbr_material
 from warprt.meshes import asset_key, prepare_mesh
 from warprt.scene.transform import quaternion_matrix, slerp
 

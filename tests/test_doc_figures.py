@@ -19,6 +19,8 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RESULTS = json.loads((ROOT / "docs" / "benchmarks" / "results.json").read_text())
+# the side-by-side with Newton's camera (python -m benchmarks.newton_bench), under "newton/..."
+RESULTS["newton"] = json.loads((ROOT / "docs" / "benchmarks" / "newton.json").read_text())
 N = r"(\d+(?:\.\d+)?)"  # a quoted number
 SPEC = "specialisation/full_over_specialised"
 SPREAD = r"(?:\s\([^)]*\))?"  # the spread that may follow a ratio (checked by its own test below)
@@ -52,6 +54,13 @@ FIGURES = [
      ["compile/cached/compile_s", "compile/cached/process_s"]),
     ("README.md", rf"and {N} s for\s`Features.full\(\)` in a fresh process", ["compile/full/compile_s"]),
     # equal-error speed-ups over independent sampling
+    # warprt against Newton's SensorTiledCamera
+    *[("docs/benchmarks.md", rf"\| \({key}\) [^|]* \| {N} \| {N} \| {N} \| \*\*{N}×\*\* \({N}–{N}×\) \| {N}× \|",
+       [f"newton/cases/{key}/newton/mpix_s", f"newton/cases/{key}/warprt/mpix_s",
+        f"newton/cases/{key}/warprt_1core/mpix_s", f"newton/cases/{key}/speed_ratio",
+        f"newton/cases/{key}/speed_ratio_spread/0", f"newton/cases/{key}/speed_ratio_spread/1",
+        f"newton/cases/{key}/speed_ratio_1core"]) for key in ("a", "b")],
+    ("docs/benchmarks.md", rf"pose update from `state.body_q` takes {N} ms", ["newton/cases/a/pose_update/update_ms_median"]),
     *[("docs/benchmarks.md", rf"\| {label} \| {N}× \| {N}× \|", [f"error/{key}/stratified", f"error/{key}/sobol"])
       for label, key in (("soft shadows", "soft_shadows"), ("depth of field", "depth_of_field"),
                          (r"antialiasing \(edges\)", "antialiasing"), ("glossy reflection", "glossy"),
@@ -64,6 +73,9 @@ def json_value(path: str) -> float:
     "soft_shadows/stratified"), so the longest key present is taken at each level."""
     node, parts = RESULTS, path.split("/")
     while parts:
+        if isinstance(node, list):  # a list: the next part is an index
+            node, parts = node[int(parts[0])], parts[1:]
+            continue
         k = next((k for k in range(len(parts), 0, -1) if "/".join(parts[:k]) in node), None)
         if k is None:
             raise KeyError(f"{path}: no {parts[0]!r} in results.json")

@@ -15,7 +15,7 @@ from .errors import RenderError, SceneError
 from .image import check_output, read_exr, save_image
 from .query import camera_rays, trace_rays
 from . import animation
-from .assets import load_assets
+from .scene.assets import load_assets
 from .render import Renderer, RenderResult, render
 from .worlds import BatchRenderer, BatchResult
 from .scene import (

@@ -942,6 +942,7 @@ def lit_scenes(draw, mirrors: bool = False):
     look = draw(st.tuples(fl(-0.5, 0.5), fl(-0.5, 0.5), fl(-0.5, 0.5)))
     d = np.array(draw(directions(0.3, 1.0)))
     d /= np.linalg.norm(d)
+    assume(abs(d[1]) < 0.99)  # a view straight up or down is not a camera (up = +y is parallel to it)
     eye = tuple(float(c) for c in np.array(look) + d * draw(fl(3.0, 8.0)))
     cam = {"eye": eye, "look_at": look, "fov": draw(fl(20.0, 70.0)),
            "width": draw(st.integers(3, 8)), "height": draw(st.integers(3, 6))}

@@ -31,13 +31,13 @@ from .description import LIGHT_TYPES, SHAPE_TYPES, Animation, Camera, Material, 
 TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights", "animation"}
 WORLD_FIELDS = {"ambient", "background"}
 # [[shapes]] type = "assets": a glTF/GLB file (or any multi-object file trimesh reads) loaded by
-# warprt.assets.load_assets into one mesh shape per node, with its materials
+# warprt.scene.assets.load_assets into one mesh shape per node, with its materials
 ASSET_FIELDS = ("file", "transform", "smooth", "material", "prefix", "degenerate", "unsupported")
 
 
 def _assets(item: Mapping[str, Any], where: str, base_dir: str, materials: dict) -> list[Any]:
     """Expand an ``assets`` entry into its mesh shapes; its materials go into ``materials``."""
-    from ..assets import load_assets
+    from .assets import load_assets
 
     unknown = sorted(set(item) - set(ASSET_FIELDS) - {"type"})
     if unknown:

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import SceneError
-from .values import Vec3, as_vec3, checked_keywords, finite, set_field
+from .values import Vec3, as_quaternion, as_vec3, checked_keywords, finite, set_field
 
 # |cos| between two columns of a matrix's 3x3 part above which it is sheared, and the relative
 # length of a column below which it is singular. The float32 round-off of a rotation matrix (about
@@ -30,23 +30,6 @@ SINGULAR_TOLERANCE = 1e-9
 # largest rotation, in degrees of Euler angle (summed over x, y, z), between two keyframes that
 # slerp interpolates as it stands (see rotation_keys)
 EULER_STEP = 180.0
-
-
-def as_quaternion(x: Any, name: str) -> tuple[float, float, float, float]:
-    """A rotation quaternion (x, y, z, w): four finite numbers, not all zero; returned normalised
-    with w >= 0 (q and -q are the same rotation)."""
-    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 4:
-        raise SceneError(f"expected four numbers [x, y, z, w], got {x!r}", name)
-    q = np.array([finite(v, f"{name}[{i}]") for i, v in enumerate(x)], dtype=np.float64)
-    n = float(np.linalg.norm(q))
-    if not math.isfinite(n):
-        raise SceneError(f"is too large to normalise, got {list(q)}", name)
-    if n < 1e-12:
-        raise SceneError(f"must not be zero (it is normalised to a unit quaternion), got {list(q)}", name)
-    q = q / n
-    if q[3] < 0.0:
-        q = -q
-    return tuple(float(c) + 0.0 for c in q)  # type: ignore[return-value]  (+0.0: no -0.0)
 
 
 def quaternion_matrix(q: Sequence[float]) -> np.ndarray:

@@ -160,8 +160,6 @@ def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
                 if f == "scale" and isinstance(v, (int, float)) and not isinstance(v, bool):
                     v = (v, v, v)
                 if f == "quaternion":
-                    from .transform import as_quaternion
-
                     if "rotate" in key:
                         raise SceneError("give the rotation once: rotate (Euler angles) or quaternion, not both",
                                          f"{where}.quaternion")
@@ -170,3 +168,20 @@ def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
                 k[f] = as_vec3(v, f"{where}.{f}")
         out.append(k)
     return tuple(out)
+
+
+def as_quaternion(x: Any, name: str) -> tuple[float, float, float, float]:
+    """A rotation quaternion (x, y, z, w): four finite numbers, not all zero; returned normalised
+    with w >= 0 (q and -q are the same rotation)."""
+    if isinstance(x, (str, bytes)) or not isinstance(x, (Sequence, np.ndarray)) or len(x) != 4:
+        raise SceneError(f"expected four numbers [x, y, z, w], got {x!r}", name)
+    q = np.array([finite(v, f"{name}[{i}]") for i, v in enumerate(x)], dtype=np.float64)
+    n = float(np.linalg.norm(q))
+    if not math.isfinite(n):
+        raise SceneError(f"is too large to normalise, got {list(q)}", name)
+    if n < 1e-12:
+        raise SceneError(f"must not be zero (it is normalised to a unit quaternion), got {list(q)}", name)
+    q = q / n
+    if q[3] < 0.0:
+        q = -q
+    return tuple(float(c) + 0.0 for c in q)  # type: ignore[return-value]  (+0.0: no -0.0)

@@ -32,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SceneError
-from .scene.description import DEFAULT_MATERIAL, Material, Mesh
-from .scene.transform import Transform, as_transform
+from ..errors import SceneError
+from .description import DEFAULT_MATERIAL, Material, Mesh
+from .transform import Transform, as_transform
 
 GLOSSY_LIMIT = 1e5  # Phong exponents at least this large are a perfect mirror (glossy_exponent 0)
 
