@@ -13,10 +13,15 @@ that writes each shape's world pose ``body_q[body] * shape_transform`` straight 
 
 Shape kinds: spheres and planes stay analytic (a plane with a finite width/length becomes a
 rectangle); boxes become 12-triangle meshes (exact); capsules, cylinders, cones and ellipsoids
-become triangle meshes (``trimesh.creation``, ``TESSELLATION`` below: their silhouettes differ
-from the analytic shapes by up to about 0.3% of their radius); meshes keep their triangles
-(times their scale). Height fields, SDFs, Gaussians and particles are refused with the shape's
-index; invisible shapes (no ``VISIBLE`` flag) are skipped as Newton's camera skips them.
+become triangle meshes inscribed in them (``trimesh.creation``, ``TESSELLATION`` below: 64
+sections around an axis, an icosphere of 5120 faces for an ellipsoid; every facet lies within
+1 − cos(π/64) = 0.12% of the shape's largest radius of the analytic surface, which the tests
+check against Newton's own intersections); meshes and convex hulls keep their triangles (times
+their scale). A plane's scale holds its full width and length (0: infinite), as in Newton's
+ray cast. Height fields, SDFs, Gaussians, particles, barrel cylinders and planes finite along
+one axis only are refused with the shape's index; invisible shapes (no ``VISIBLE`` flag, e.g.
+collision-only ones) are skipped as Newton's camera skips them; opacity and textures are not
+read (every shape is an opaque Lambert surface of its colour).
 Newton is z-up: cameras are placed with ``camera_poses`` (camera to world, looking along local
 -z, +y up), like Newton's own camera transforms.
 """
@@ -32,7 +37,7 @@ from .errors import SceneError
 from .scene.description import Camera, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere
 from .worlds import BatchRenderer, camera_quaternion
 
-TESSELLATION = dict(sphere_subdivisions=3, cylinder_sections=64)  # meshes for curved Newton shapes
+TESSELLATION = dict(sphere_subdivisions=4, cylinder_sections=64)  # meshes for curved Newton shapes
 
 # newton.GeoType values (checked against the installed Newton on import of the model)
 _PLANE, _HFIELD, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH, _CONE, _CONVEX = 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
@@ -99,11 +104,18 @@ def _warprt_shape(model, s: int, material: str):
     scale = model.shape_scale.numpy()[s]
     if kind == _SPHERE:
         return Sphere(center=(0.0, 0.0, 0.0), radius=float(scale[0]), material=material)
-    if kind == _PLANE:
+    if kind == _PLANE:  # scale = (width, length, 0): full extents along local x and y, 0 = infinite
         w, h = float(scale[0]), float(scale[1])
-        if w > 0 and h > 0:  # a finite plane: width × length about the origin, in local x and y
-            return Rectangle(corner=(-w, -h, 0.0), edge1=(2 * w, 0.0, 0.0), edge2=(0.0, 2 * h, 0.0), material=material)
+        if w > 0 and h > 0:
+            return Rectangle(corner=(-0.5 * w, -0.5 * h, 0.0), edge1=(w, 0.0, 0.0), edge2=(0.0, h, 0.0),
+                             material=material)
+        if w > 0 or h > 0:
+            raise SceneError(f"a plane finite along one axis only (width {w}, length {h}) has no warprt "
+                             "counterpart (give both extents, or neither)", f"model.shapes[{s}]")
         return Plane(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), material=material)
+    if kind == _CYLINDER and float(scale[2]) != 0.0:
+        raise SceneError(f"a barrel cylinder (barrel_radius {float(scale[2])}) cannot be rendered by warprt "
+                         "(straight cylinders only)", f"model.shapes[{s}]")
     v, f = _mesh_of(kind, scale, model.shape_source[s], s)
     return Mesh(vertices=v, faces=f, material=material)
 
