@@ -42,6 +42,7 @@ import warp as wp  # noqa: E402
 import warprt  # noqa: E402
 
 FOV = 45.0
+LIGHT_DIRECTION = np.array([-1.0, 1.0, -1.0])  # Newton's default light, the way it travels (both sides)
 
 
 def build_model(worlds: int):
@@ -82,7 +83,8 @@ class NewtonSide:
         cfg = self.sensor.default_render_config
         cfg.enable_shadows = True
         cfg.enable_ambient_lighting = ambient
-        self.sensor.utils.create_default_light(enable_shadows=True)
+        d = LIGHT_DIRECTION / np.linalg.norm(LIGHT_DIRECTION)
+        self.sensor.utils.create_default_light(enable_shadows=True, direction=wp.vec3(*d))
         self.rays = self.sensor.utils.compute_camera_rays_pinhole(width, height, camera_fovs=[math.radians(FOV)] * cameras)
         W = model.world_count
         poses = camera_poses(W, cameras).transpose(1, 0, 2)  # Newton's (camera, world)
@@ -107,7 +109,8 @@ class WarprtSide:
         from warprt.newton_bridge import NewtonRenderer
 
         cam = warprt.Camera(eye=(5, -5, 3.5), look_at=(0, 0, 0.3), up=(0, 0, 1), fov=FOV, width=width, height=height)
-        self.r = NewtonRenderer(model, cameras=cameras, camera=cam,
+        light = warprt.DirectionalLight(direction=tuple(LIGHT_DIRECTION), intensity=1.0)  # Newton's, equal
+        self.r = NewtonRenderer(model, cameras=cameras, camera=cam, lights=(light,),
                                 render=warprt.RenderSettings(sampler="regular", spp=1))
         self.r.set_camera_poses(camera_poses(model.world_count, cameras))
         self.workers = workers
@@ -115,7 +118,8 @@ class WarprtSide:
 
     def frame(self, state, aovs: bool = False):
         self.r.update(state)
-        self.out = self.r.batch.render(spp=1, workers=self.workers, aovs=("depth", "object_id") if aovs else ())
+        self.out = self.r.batch.render(spp=1, workers=self.workers,
+                                       aovs=("depth", "object_id", "normal", "albedo") if aovs else ())
 
 
 def timed(fn, state) -> float:
@@ -125,36 +129,43 @@ def timed(fn, state) -> float:
 
 
 def agreement(model, cameras, width, height) -> dict:
-    """Where the models coincide: hit mask, depth, shape index, lit colour (Newton's ambient off)."""
+    """Where the models coincide (Newton's ambient off): hit mask, depth, shape index; lit colour
+    (warprt kd·n·l against Newton's albedo·n·l on pixels both light); and the shadow masks: on
+    pixels facing the light, warprt's shadow is black and Newton's keeps 0.3 of the light, so
+    each renderer's shadowed set is read off its own image and the two sets compared."""
     state = model.state()
     n = NewtonSide(model, cameras, width, height, ambient=False)
     n.frame(state, aovs=True)
     w = WarprtSide(model, cameras, width, height, workers=2)
     w.frame(state, aovs=True)
     a = w.out.aovs_numpy()
-    nd, ns, nh = n.depth.numpy(), n.index.numpy(), n.hdr.numpy()
-    hit_n, hit_w = nd > 0, np.isfinite(a["depth"])
+    nd, ns, nh = n.depth.numpy(), n.index.numpy().astype(np.int64), n.hdr.numpy()
+    hit_n, hit_w = nd > 0, np.isfinite(a["depth"]) & (a["depth"] < n.sensor.default_render_config.max_distance)
     both = hit_n & hit_w
-    table = w.r.shape_map.newton_shape  # (W, S)
-    oid = np.maximum(a["object_id"], 0)
-    mapped = np.take_along_axis(table[:, None, None, None, :].repeat(cameras, 1).repeat(height, 2).repeat(width, 3),
-                                oid[..., None], axis=-1)[..., 0]
-    img = w.out.numpy().sum(-1)
-    nsum = nh.sum(-1)
-    lit = both & (img > 1e-4) & (nsum > 1e-4)
+    table = w.r.shape_map.newton_shape  # (W, S): the Newton shape of warprt shape j in world w
+    world = np.arange(table.shape[0])[:, None, None, None]
+    mapped = table[world, np.maximum(a["object_id"], 0)]
+    img, nsum = w.out.numpy().sum(-1), nh.sum(-1)
+    to_light = -LIGHT_DIRECTION / np.linalg.norm(LIGHT_DIRECTION)
+    unshadowed = (a["albedo"] * np.maximum((a["normal"] * to_light).sum(-1), 0)[..., None]).sum(-1)
+    facing = both & (unshadowed > 1e-3)
+    dark_w = img <= 1e-6 * unshadowed
+    dark_n = np.abs(nsum - 0.3 * unshadowed) <= 1e-3 * unshadowed  # Newton: 0.3 of the light in shadow
+    lit = facing & ~dark_w & ~dark_n & (nsum > 0)
     ratio = img[lit] / nsum[lit]
+    rel = np.abs(nd[both] - a["depth"][both]) / nd[both]
     return {
         "pixels": int(hit_n.size),
         "hit_mask_agree": float(np.mean(hit_n == hit_w)),
-        "depth_rel_err_median": float(np.median(np.abs(nd[both] - a["depth"][both]) / nd[both])),
-        "depth_within_1e-4": float(np.mean(np.abs(nd[both] - a["depth"][both]) <= 1e-4 * nd[both])),
+        "depth_rel_err_median": float(np.median(rel)),
+        "depth_within_1e-4": float(np.mean(rel <= 1e-4)),
         "shape_index_agree": float(np.mean(mapped[both] == ns[both])),
+        "lit_pixels": int(lit.sum()),
         "lit_colour_ratio_median": float(np.median(ratio)),
         "lit_colour_within_1e-3": float(np.mean(np.abs(ratio - 1) < 1e-3)),
-        # warprt's shadow is 0 light, Newton's keeps 0.3 of it: a shadowed pixel is where
-        # warprt is dark and Newton is not; the two masks must coincide
-        "shadow_mask_agree": float(np.mean((img[both] <= 1e-6) == (nsum[both] <= 0.31 * np.maximum(
-            img[both], 0) + 1e-6) | (img[both] <= 1e-6))),
+        "facing_pixels": int(facing.sum()),
+        "shadowed_pixels_warprt": int((facing & dark_w).sum()),
+        "shadow_mask_agree": float(np.mean(dark_w[facing] == dark_n[facing])),
     }
 
 

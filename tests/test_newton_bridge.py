@@ -145,6 +145,27 @@ def warprt_images(m, state, poses, height, width, aovs=("depth", "object_id", "n
     return r, out.numpy(), out.aovs_numpy()
 
 
+def test_motion_blur_opens_the_shutter_on_the_previous_state():
+    m = model()
+    s0, s1 = m.state(), moved_state(m)
+    r = NewtonRenderer(m, cameras=1, camera=warprt.Camera(width=8, height=8), motion_blur=True)
+    still = NewtonRenderer(m, cameras=1, camera=warprt.Camera(width=8, height=8))
+    still.update(s0)
+    at0 = still.batch.shape_poses.numpy().copy()  # (numpy() shares a CPU array)
+    still.update(s1)
+    at1 = still.batch.shape_poses.numpy().copy()
+    assert not np.allclose(at0, at1)
+    r.update(s0)  # the first state: no previous one, the shutter opens and closes on it
+    np.testing.assert_array_equal(r.batch.shape_poses.numpy(), at0)
+    np.testing.assert_array_equal(r.batch.shape_poses_end.numpy(), at0)
+    r.update(s1)
+    np.testing.assert_array_equal(r.batch.shape_poses.numpy(), at0)
+    np.testing.assert_array_equal(r.batch.shape_poses_end.numpy(), at1)
+    r.update(s0)
+    np.testing.assert_array_equal(r.batch.shape_poses.numpy(), at1)
+    np.testing.assert_array_equal(r.batch.shape_poses_end.numpy(), at0)
+
+
 @pytest.fixture(scope="module")
 def both():
     """Newton's tiled camera and warprt on the same model, cameras and light."""
