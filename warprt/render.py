@@ -139,6 +139,33 @@ def run_pass(pool: ThreadPoolExecutor, launches: list, workers: int, s0: int, s1
         raise KeyboardInterrupt
 
 
+class WorkerPool:
+    """A pool of worker threads kept from one render to the next (remade when the worker count
+    changes); its threads stop on ``close()`` or when the pool is garbage-collected."""
+
+    def __init__(self, prefix: str):
+        self._prefix = prefix
+        self._pool: ThreadPoolExecutor | None = None
+        self._size = 0
+
+    def get(self, workers: int) -> ThreadPoolExecutor:
+        if self._pool is None or self._size != workers:
+            self.close()
+            self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=self._prefix)
+            self._size = workers
+        return self._pool
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def __del__(self):
+        pool = getattr(self, "_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=False)
+
+
 class _CtrlC:
     """Ctrl-C during the pass loop, race-free: while the block runs, a SIGINT handler that only
     sets ``pressed`` (read by the loop after each pass) replaces Python's default one, so no
@@ -193,8 +220,7 @@ class Renderer:
         self.features = self.built.features if features is None else self.built.features.union(features)
         self.kernel = kernels_for(self.features).render
         self._loaded = None  # the kernel loaded on the device by compile()
-        self._pool: ThreadPoolExecutor | None = None
-        self._pool_size = 0
+        self._pool = WorkerPool("warprt-render")
 
     def update(self, scene: Scene) -> None:
         """Switch to a changed scene (moved objects, new materials, lights or camera...) without
@@ -238,24 +264,11 @@ class Renderer:
         return _time.perf_counter() - start
 
     def _workers(self, workers: int) -> ThreadPoolExecutor:
-        """The renderer's pool of ``workers`` threads, kept from one render to the next."""
-        if self._pool is None or self._pool_size != workers:
-            if self._pool is not None:
-                self._pool.shutdown(wait=True)
-            self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warprt-render")
-            self._pool_size = workers
-        return self._pool
+        return self._pool.get(workers)
 
     def close(self) -> None:
         """Stop the worker threads (they also stop when the renderer is garbage-collected)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
-
-    def __del__(self):
-        pool = getattr(self, "_pool", None)
-        if pool is not None:
-            pool.shutdown(wait=False)
+        self._pool.close()
 
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
                slices: int | None = None, pass_spp: int | None = None, time_budget: float | None = None,

@@ -54,7 +54,7 @@ from .records import (
     FALLOFF_DIRECTIONAL, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE, CameraData, DiskRec, Features, InstRec,
     PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SphereRec,
 )
-from .render import SLICES_PER_WORKER, _slices, check_seed, default_workers, run_pass
+from .render import SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, run_pass
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box
@@ -399,8 +399,7 @@ class BatchRenderer:
         self._kernel = batch_kernel_for(self.features)
         self._loaded = False
         self._aov_bufs = None
-        self._pool = None
-        self._pool_size = 0
+        self._pool = WorkerPool("warprt-batch")
 
     # --- poses ------------------------------------------------------------------------------
 
@@ -467,25 +466,9 @@ class BatchRenderer:
 
     # --- rendering --------------------------------------------------------------------------
 
-    def _workers(self, workers: int):
-        from concurrent.futures import ThreadPoolExecutor
-
-        if self._pool is None or self._pool_size != workers:
-            if self._pool is not None:
-                self._pool.shutdown(wait=True)
-            self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warprt-batch")
-            self._pool_size = workers
-        return self._pool
-
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
-
-    def __del__(self):
-        pool = getattr(self, "_pool", None)
-        if pool is not None:
-            pool.shutdown(wait=False)
+        """Stop the worker threads (they also stop when the renderer is garbage-collected)."""
+        self._pool.close()
 
     def render(self, spp: int = 1, seed: int = 0, *, aovs=(), workers: int | None = None,
                slices: int | None = None) -> BatchResult:
@@ -528,7 +511,7 @@ class BatchRenderer:
             args = list(inputs)
             args[3], args[4] = first, stride
             launches.append(wp.launch(self._kernel, dim=count, device=dev, inputs=args, record_cmd=True))
-        run_pass(self._workers(workers), launches, workers, 0, spp)
+        run_pass(self._pool.get(workers), launches, workers, 0, spp)
         wp.launch(_image_kernel(), dim=self._color.shape[0], device=dev,
                   inputs=[self.film.data.accum, 1.0 / float(spp), self._color])
         shape = (self.worlds, self.cameras, self.height, self.width)
