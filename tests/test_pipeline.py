@@ -345,12 +345,24 @@ def test_ctrl_c_returns_the_samples_accumulated_so_far():
     scene = _scene().with_camera(width=64, height=48)
     renderer = warprt.Renderer(scene)
     renderer.compile()
-    timer = threading.Timer(0.4, _thread.interrupt_main)
-    timer.start()
+    done = threading.Event()
+
+    def press_ctrl_c():
+        # once render() has installed its handler (however long its set-up takes on a loaded
+        # machine) and a few passes have run, press Ctrl-C, again until render() returns
+        while not done.is_set() and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            time.sleep(0.01)
+        while not done.wait(0.4):
+            if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:  # still rendering
+                _thread.interrupt_main()
+
+    presser = threading.Thread(target=press_ctrl_c, daemon=True)
+    presser.start()
     try:
         result = renderer.render(spp=1_000_000, pass_spp=2, progress=False)
     finally:
-        timer.cancel()
+        done.set()
+        presser.join()
     assert result.interrupted and 1 <= result.spp < 1_000_000 and result.spp % 2 == 1  # 1 + whole passes of 2
     assert np.isfinite(result.image).all()
     full = renderer.render(spp=64, progress=False).image
