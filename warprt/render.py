@@ -263,9 +263,6 @@ class Renderer:
         wp.synchronize_device(dev)
         return _time.perf_counter() - start
 
-    def _workers(self, workers: int) -> ThreadPoolExecutor:
-        return self._pool.get(workers)
-
     def close(self) -> None:
         """Stop the worker threads (they also stop when the renderer is garbage-collected)."""
         self._pool.close()
@@ -382,7 +379,7 @@ class Renderer:
         launches = [wp.launch(self.kernel, dim=count, device=dev, record_cmd=True,
                               inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0, film.data])
                     for first, stride, count in _slices(cam.width, cam.height, n_slices)]
-        pool = self._workers(workers)
+        pool = self._pool.get(workers)
 
         done, interrupted, rel_err = 0, False, None
         elapsed = 0.0

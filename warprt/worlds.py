@@ -499,13 +499,11 @@ class BatchRenderer:
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
                   self.height, self.width]
         if not self._loaded:  # load the modules from this thread (workers must not race to build them)
-            t0 = _time.perf_counter()
             self._update_tables()
             wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
             wp.launch(_image_kernel(), dim=1, device=dev, inputs=[self.film.data.accum, 1.0, self._color])
             wp.synchronize_device(dev)
             self.counters["compiles"] += 1
-            self.compile_time = _time.perf_counter() - t0
             self._loaded = True
         start = _time.perf_counter()
         self._update_tables()
