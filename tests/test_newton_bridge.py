@@ -3,7 +3,8 @@ written from ``state.body_q``, and images where the two renderers' models coinci
 index and lit colour against Newton's SensorTiledCamera on the same model and cameras), plus an
 update loop that rebuilds, recompiles and copies nothing. Skipped where Newton is not installed.
 
-Tolerances: depth to float32 rounding of two different ray/box and ray/sphere computations
+Tolerances: depth to float32 rounding of two different ray/box, ray/sphere, ray/capsule and
+ray/cylinder computations
 (measured median 3e-7 relative; 99.9% of pixels within 1e-4, the rest grazing box faces);
 colour on lit pixels to float32 (measured median ratio 1 - 1.2e-7; 99.5% within 1e-3, the rest
 where the two normals' rounding differs on grazing faces). Pixels on silhouettes may see
@@ -73,10 +74,10 @@ def test_scene_structure_matches_the_model():
     m = model()
     scene, smap = scene_from_model(m)
     kinds = [type(s).__name__ for s in scene.shapes]
-    assert kinds == ["Plane", "Mesh", "Sphere"]  # the ground (global), then world 0's box and sphere
+    assert kinds == ["Plane", "Box", "Sphere"]  # the ground (global), then world 0's box and sphere
     assert smap.global_shapes == 1 and smap.newton_shape.shape == (W, 3)
     box = scene.shapes[1]
-    np.testing.assert_allclose(np.ptp(np.asarray(box.vertices), axis=0), 2 * np.asarray(BOX))
+    np.testing.assert_allclose(box.size, 2 * np.asarray(BOX))  # Newton's are half extents
     assert scene.shapes[2].radius == pytest.approx(0.35)
     assert scene.materials[scene.shapes[1].material].kd == pytest.approx(srgb_to_linear((0.9, 0.2, 0.2)))
     # worlds map to their own Newton shapes
@@ -253,7 +254,8 @@ def support(kind: int, size, n: np.ndarray) -> np.ndarray:
 
 
 def test_every_shape_kind_agrees_with_newton_within_its_tessellation():
-    """Exact kinds (planes, finite planes, meshes): depth to float32. Tessellated kinds: the mesh
+    """Exact kinds (planes, finite planes, capsules, cylinders, meshes): depth to float32.
+    Tessellated kinds (cones, ellipsoids): the mesh
     is inscribed in the analytic surface, and the surface lies between each facet's plane and the
     parallel plane at the support distance, δ = h(n) - n·v0 beyond it; so along a ray meeting the
     facet at cos θ = |n·d|, warprt's depth exceeds Newton's by at most δ / cos θ and is never
@@ -267,11 +269,10 @@ def test_every_shape_kind_agrees_with_newton_within_its_tessellation():
     _, nd, ns, cfg = newton_images(m, state, poses, hgt, wid)
     r, _, a = warprt_images(m, state, poses, hgt, wid, aovs=("depth", "object_id", "normal"))
     kinds = [type(s).__name__ for s in r.scene.shapes]
-    assert kinds == ["Plane", "Rectangle", "Mesh", "Mesh", "Mesh", "Mesh", "Mesh"]
+    assert kinds == ["Plane", "Rectangle", "Capsule", "Cylinder", "Mesh", "Mesh", "Mesh"]
     types, sizes = m.shape_type.numpy(), m.shape_scale.numpy()
-    tessellated = [s for s in range(len(types)) if types[s] in (newton.GeoType.CAPSULE, newton.GeoType.CYLINDER,
-                                                                  newton.GeoType.CONE, newton.GeoType.ELLIPSOID)]
-    assert len(tessellated) == 4
+    tessellated = [s for s in range(len(types)) if types[s] in (newton.GeoType.CONE, newton.GeoType.ELLIPSOID)]
+    assert len(tessellated) == 2
     delta = np.zeros(len(types))
     for s in tessellated:
         mesh = r.scene.shapes[s]  # one world, no hidden shapes: warprt shape j is Newton shape j
@@ -295,7 +296,16 @@ def test_every_shape_kind_agrees_with_newton_within_its_tessellation():
     # every disagreement: Newton sees a tessellated shape's rim that the inscribed mesh misses
     assert np.isin(ns[differ], tessellated).all()
     assert (~hit_w[differ] | (wd[differ] > nd[differ])).all()
-    assert differ.sum() <= 0.01 * np.isin(ns, tessellated).sum()
+    # ... on the silhouette: a pixel next to one where Newton sees something else
+    rim = np.zeros_like(differ)
+    for axis in (-1, -2):
+        step = np.diff(ns, axis=axis) != 0
+        pad = [(0, 0)] * ns.ndim
+        pad[axis] = (1, 0)
+        rim |= np.pad(step, pad)
+        pad[axis] = (0, 1)
+        rim |= np.pad(step, pad)
+    assert rim[differ].all()
     same = ~differ & hit_n
     assert np.unique(ns[same]).tolist() == list(range(len(types)))  # every shape in view
     # depth: exact kinds to float32 (measured at most 9e-6 relative on the grazing ground),

@@ -19,14 +19,14 @@ from .scene.assets import load_assets
 from .render import Renderer, RenderResult, render
 from .worlds import BatchRenderer, BatchResult
 from .scene import (
-    Animation, Camera, DirectionalLight, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings, Scene,
+    Animation, Box, Camera, Capsule, Cylinder, DirectionalLight, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings, Scene,
     Sphere, SphereLight, Transform, load_scene, parse_scene, scene_from_string,
 )
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Animation", "BatchRenderer", "BatchResult", "Camera", "DirectionalLight", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
+    "Animation", "BatchRenderer", "BatchResult", "Box", "Camera", "Capsule", "Cylinder", "DirectionalLight", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
     "SphereLight", "Transform", "load_scene", "parse_scene", "check_output", "read_exr", "render", "save_image",
     "scene_from_string", "camera_rays", "trace_rays", "load_assets",

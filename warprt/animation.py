@@ -1,7 +1,8 @@
 """Animation: keyframed scenes, frame by frame, without kernel recompiles or BVH rebuilds.
 
 A scene's ``[animation]`` table gives ``frames`` and ``fps``; frame f shows time f / fps. Spheres
-(``center``), meshes (``translate``/``rotate`` or ``quaternion``/``scale``) and the camera
+(``center``), meshes, boxes, capsules and cylinders (``translate``/``rotate`` or
+``quaternion``/``scale``) and the camera
 (``eye``/``look_at``) may carry ``keyframes``: positions and scales are interpolated linearly in
 time, rotations by slerp (clamped at the ends; Euler keys 180 degrees or more apart get
 intermediate keys so that they turn the way their angles say, see
@@ -26,7 +27,7 @@ import numpy as np
 from .errors import FramesInterrupted, RenderError
 from .image import check_output, save_image
 from .render import Renderer, check_seed
-from .scene.description import Camera, Mesh, Scene, Sphere
+from .scene.description import SOLID_TYPES, Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform, interpolate_rotation, rotation_keys
 
 
@@ -73,7 +74,7 @@ def frame_scene(scene: Scene, frame: int) -> Scene:
         if isinstance(s, Sphere) and s.keyframes:
             s = replace(s, center=_interp(s.keyframes, t0, "center", s.center),
                         center_end=_interp(s.keyframes, t1, "center", s.center))
-        elif isinstance(s, Mesh) and s.keyframes:
+        elif isinstance(s, (Mesh, *SOLID_TYPES)) and s.keyframes:
             s = replace(s, transform=_mesh_transform(s, t0), transform_end=_mesh_transform(s, t1))
         shapes.append(s)
     cam: Camera = scene.camera

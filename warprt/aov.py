@@ -50,7 +50,7 @@ from .camera import camera_frame_w, camera_ray, project
 from .errors import RenderError
 from .film import FilmData
 from .integrator import DIM_FILM, DIM_LENS, DIM_TIME
-from .records import KIND_MESH, KIND_NONE, KIND_SPHERE, CameraData, Features, RenderParams, SceneData
+from .records import KIND_BOX, KIND_MESH, KIND_NONE, KIND_SPHERE, CameraData, Features, RenderParams, SceneData
 from .sampling import pixel_key, sample_1d_keyed, sample_2d_keyed
 from .scene.description import is_area_light
 from .trace import make_trace, to_object, to_world
@@ -112,6 +112,7 @@ def aov_functions():
     tracing of ``Features.full()`` (runtime checks stand in for the render kernel's switches)."""
     trace = make_trace(Features.full())
     closest_hit, sphere_center, instance_pose = trace.closest_hit, trace.sphere_center, trace.instance_pose
+    solid_pose, solid_rec = trace.solid_pose, trace.solid_rec
 
     @wp.func
     def aov_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
@@ -169,6 +170,11 @@ def aov_functions():
                 p_obj = to_object(instance_pose(scene, h.index, time), h.p)
                 p0 = to_world(instance_pose(scene, h.index, t0), p_obj)
                 p1 = to_world(instance_pose(scene, h.index, t1), p_obj)
+            elif h.kind >= KIND_BOX:
+                rec = solid_rec(scene, h.kind, h.index)
+                p_obj = to_object(solid_pose(rec, time), h.p)
+                p0 = to_world(solid_pose(rec, t0), p_obj)
+                p1 = to_world(solid_pose(rec, t1), p_obj)
             mot += project(cam, p1, t1) - project(cam, p0, t0)
             # id votes
             oid = idmap.ids[idmap.base[h.kind] + h.index]
@@ -233,7 +239,8 @@ def id_map(built: DeviceScene) -> IdMap:
     """The object id of every row of every shape table: the shape's index in ``scene.shapes``, or
     len(shapes) + light index for an area light's own surface."""
     d = built.data
-    counts = [d.n_spheres, d.n_planes, d.n_rects, d.n_disks, d.n_inst]  # KIND_SPHERE ... KIND_MESH
+    # KIND_SPHERE ... KIND_MESH, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER
+    counts = [d.n_spheres, d.n_planes, d.n_rects, d.n_disks, d.n_inst, d.n_boxes, d.n_capsules, d.n_cylinders]
     base = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)
     ids = np.full(max(int(sum(counts)), 1), -1, dtype=np.int32)
     for obj, (kind, row) in enumerate(built.shape_ids):

@@ -177,3 +177,123 @@ def ray_box(o: wp.vec3, inv_d: wp.vec3, lo: wp.vec3, hi: wp.vec3, t_min: float, 
     near = wp.max(wp.max(tn[0], tn[1]), wp.max(tn[2], t_min))
     far = wp.min(wp.min(tf[0], tf[1]), wp.min(tf[2], t_max))
     return near <= far * 1.0000004
+
+
+# --- the posed solids (boxes, capsules, cylinders), in their own frame ----------------------------
+# Each ``*_roots`` gives the interval of the ray (o, d) inside the solid as (t_in, t_out, code_in,
+# code_out), t_in > t_out when the ray misses it. Codes say which surface the ray crosses there:
+# the slab axis (0, 1, 2) for a box, 1 for a cylinder's cap and 0 for its side.
+
+SOLID_BIG = 3.0e38
+
+
+@wp.func
+def box_roots(o: wp.vec3, d: wp.vec3, h: wp.vec3) -> wp.vec4:
+    """The box |x_k| <= h_k: slab by slab (a ray parallel to a slab is inside it everywhere or
+    nowhere; no 0 · inf)."""
+    tn = float(-SOLID_BIG)
+    tf = float(SOLID_BIG)
+    an = float(0.0)
+    af = float(0.0)
+    for k in range(3):
+        if d[k] == 0.0:
+            if wp.abs(o[k]) > h[k]:
+                return wp.vec4(SOLID_BIG, -SOLID_BIG, 0.0, 0.0)
+        else:
+            inv = 1.0 / d[k]
+            t0 = (-h[k] - o[k]) * inv
+            t1 = (h[k] - o[k]) * inv
+            lo = wp.min(t0, t1)
+            hi = wp.max(t0, t1)
+            if lo > tn:
+                tn = lo
+                an = float(k)
+            if hi < tf:
+                tf = hi
+                af = float(k)
+    return wp.vec4(tn, tf, an, af)
+
+
+@wp.func
+def tube_roots(o: wp.vec3, d: wp.vec3, r: float) -> wp.vec2:
+    """The infinite solid cylinder x² + z² <= r², in the form of ``sphere_roots``: the chord from
+    the ray's closest approach to the axis (no cancellation in the discriminant), the root nearer
+    0 from the product of the roots. (SOLID_BIG, -SOLID_BIG) for a miss; a ray along the axis
+    inside the cylinder is inside it everywhere."""
+    a = d[0] * d[0] + d[2] * d[2]
+    c = o[0] * o[0] + o[2] * o[2] - r * r
+    if r <= 0.0:
+        return wp.vec2(SOLID_BIG, -SOLID_BIG)
+    if a == 0.0:
+        if c > 0.0:
+            return wp.vec2(SOLID_BIG, -SOLID_BIG)
+        return wp.vec2(-SOLID_BIG, SOLID_BIG)
+    tc = -(o[0] * d[0] + o[2] * d[2]) / a
+    lx = o[0] + tc * d[0]
+    lz = o[2] + tc * d[2]
+    disc = r * r - (lx * lx + lz * lz)
+    if disc < 0.0:
+        return wp.vec2(SOLID_BIG, -SOLID_BIG)
+    hc = wp.sqrt(disc / a)
+    q = tc + wp.where(tc >= 0.0, hc, -hc)  # the root farther from 0
+    other = float(0.0)
+    if q != 0.0:
+        other = (c / a) / q
+    return wp.vec2(wp.min(q, other), wp.max(q, other))
+
+
+@wp.func
+def cylinder_roots(o: wp.vec3, d: wp.vec3, r: float, h: float) -> wp.vec4:
+    """The closed cylinder x² + z² <= r², |y| <= h: the tube cut by the slab of the caps."""
+    side = tube_roots(o, d, r)
+    s0 = float(-SOLID_BIG)
+    s1 = float(SOLID_BIG)
+    if d[1] == 0.0:
+        if wp.abs(o[1]) > h:
+            return wp.vec4(SOLID_BIG, -SOLID_BIG, 0.0, 0.0)
+    else:
+        t0 = (-h - o[1]) / d[1]
+        t1 = (h - o[1]) / d[1]
+        s0 = wp.min(t0, t1)
+        s1 = wp.max(t0, t1)
+    tin = side[0]
+    tout = side[1]
+    cin = float(0.0)
+    cout = float(0.0)
+    if s0 > tin:
+        tin = s0
+        cin = 1.0
+    if s1 < tout:
+        tout = s1
+        cout = 1.0
+    return wp.vec4(tin, tout, cin, cout)
+
+
+@wp.func
+def capsule_roots(o: wp.vec3, d: wp.vec3, r: float, h: float) -> wp.vec4:
+    """The capsule (points within r of the segment (0, ±h, 0)): a convex union of the open
+    cylinder and two balls, so its interval is the hull of theirs."""
+    body = cylinder_roots(o, d, r, h)
+    tin = body[0]
+    tout = body[1]
+    if tin > tout:
+        tin = SOLID_BIG
+        tout = -SOLID_BIG
+    for k in range(2):
+        ends = sphere_roots(o, d, wp.vec3(0.0, h * (2.0 * float(k) - 1.0), 0.0), r)
+        if ends[0] > -1.0e38:
+            tin = wp.min(tin, ends[0])
+            tout = wp.max(tout, ends[1])
+    return wp.vec4(tin, tout, 0.0, 0.0)
+
+
+@wp.func
+def interval_hit(iv: wp.vec4, t_min: float, t_max: float) -> float:
+    """The first boundary of the interval (iv[0], iv[1]) in the open range (t_min, t_max), or MISS."""
+    if not (iv[0] <= iv[1]):
+        return MISS
+    if iv[0] > t_min and iv[0] < t_max:
+        return iv[0]
+    if iv[1] > t_min and iv[1] < t_max:
+        return iv[1]
+    return MISS

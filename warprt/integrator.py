@@ -221,13 +221,16 @@ def kernels_for(F: Features) -> SimpleNamespace:
 
     @wp.kernel(module="unique", enable_backward=False)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
-                      row0: int, stride: int, s0: int, s1: int, film: FilmData):
-        # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame)
-        tid = wp.tid()
-        px = tid % cam.width
-        py = row0 + (tid / cam.width) * stride
+                      row0: int, stride: int, s0: int, s1: int, film: FilmData, run: int):
+        # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame),
+        # ``run`` consecutive pixels of one row per thread (``run`` divides the width: a CPU task
+        # takes a whole row, so the launch's arguments are copied once per row, not per pixel)
+        k0 = wp.tid() * run
+        py = row0 + (k0 / cam.width) * stride
         if py >= cam.height:
             return
-        render_pixel(scene, cam, params, px, py, py * cam.width + px, s0, s1, film)
+        for k in range(k0, k0 + run):
+            px = k % cam.width
+            render_pixel(scene, cam, params, px, py, py * cam.width + px, s0, s1, film)
 
     return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)

@@ -11,17 +11,18 @@ Newton's own renderer does). :class:`NewtonRenderer` builds a :class:`warprt.Bat
 that writes each shape's world pose ``body_q[body] * shape_transform`` straight into the batch's
 ``shape_poses``: no host copy, no rebuild, no recompile.
 
-Shape kinds: spheres and planes stay analytic (a plane with a finite width/length becomes a
-rectangle); boxes become 12-triangle meshes (exact); capsules, cylinders, cones and ellipsoids
-become triangle meshes inscribed in them (``trimesh.creation``, ``TESSELLATION`` below: 64
-sections around an axis, an icosphere of 5120 faces for an ellipsoid; every facet lies within
-1 − cos(π/64) = 0.12% of the shape's largest radius of the analytic surface, which the tests
-check against Newton's own intersections); meshes and convex hulls keep their triangles (times
-their scale). A plane's scale holds its full width and length (0: infinite), as in Newton's
-ray cast. Height fields, SDFs, Gaussians, particles, barrel cylinders and planes finite along
-one axis only are refused with the shape's index; invisible shapes (no ``VISIBLE`` flag, e.g.
-collision-only ones) are skipped as Newton's camera skips them; opacity and textures are not
-read (every shape is an opaque Lambert surface of its colour).
+Shape kinds: spheres, boxes, capsules and cylinders stay analytic (exact; warprt's own ``Sphere``,
+``Box``, ``Capsule`` and ``Cylinder``), and so do planes (a plane with a finite width/length
+becomes a rectangle); cones and ellipsoids become triangle meshes inscribed in them
+(``trimesh.creation``, ``TESSELLATION`` below: 64 sections around the axis, an icosphere of 5120
+faces for an ellipsoid; every facet lies within 1 − cos(π/64) = 0.12% of the shape's largest
+radius of the analytic surface, which the tests check against Newton's own intersections);
+meshes and convex hulls keep their triangles (times their scale). A plane's scale holds its full
+width and length (0: infinite), as in Newton's ray cast. Height fields, SDFs, Gaussians,
+particles, barrel cylinders and planes finite along one axis only are refused with the shape's
+index; invisible shapes (no ``VISIBLE`` flag, e.g. collision-only ones) are skipped as Newton's
+camera skips them; opacity and textures are not read (every shape is an opaque Lambert surface
+of its colour).
 Newton is z-up: cameras are placed with ``camera_poses`` (camera to world, looking along local
 -z, +y up), like Newton's own camera transforms.
 """
@@ -34,7 +35,9 @@ import numpy as np
 import warp as wp
 
 from .errors import SceneError
-from .scene.description import Camera, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere
+from .scene.description import (
+    Box, Camera, Capsule, Cylinder, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere,
+)
 from .worlds import BatchRenderer, camera_quaternion
 
 TESSELLATION = dict(sphere_subdivisions=4, cylinder_sections=64)  # meshes for curved Newton shapes
@@ -67,13 +70,7 @@ def _mesh_of(kind: int, scale, source, index: int):
     import trimesh
 
     sx, sy, sz = (float(x) for x in scale)
-    if kind == _BOX:
-        m = trimesh.creation.box(extents=(2 * sx, 2 * sy, 2 * sz))
-    elif kind == _CAPSULE:  # radius sx, half height sy, along local z
-        m = trimesh.creation.capsule(height=2 * sy, radius=sx, count=[TESSELLATION["cylinder_sections"]] * 2)
-    elif kind == _CYLINDER:
-        m = trimesh.creation.cylinder(radius=sx, height=2 * sy, sections=TESSELLATION["cylinder_sections"])
-    elif kind == _CONE:
+    if kind == _CONE:
         m = trimesh.creation.cone(radius=sx, height=2 * sy, sections=TESSELLATION["cylinder_sections"])
         m.apply_translation((0, 0, -sy))  # Newton's cone is centred on its origin
     elif kind == _ELLIPSOID:
@@ -116,6 +113,12 @@ def _warprt_shape(model, s: int, material: str):
     if kind == _CYLINDER and float(scale[2]) != 0.0:
         raise SceneError(f"a barrel cylinder (barrel_radius {float(scale[2])}) cannot be rendered by warprt "
                          "(straight cylinders only)", f"model.shapes[{s}]")
+    if kind == _BOX:  # half extents
+        return Box(size=tuple(2.0 * float(x) for x in scale), material=material)
+    if kind in (_CAPSULE, _CYLINDER):  # radius, half height, along local z
+        r, h = float(scale[0]), float(scale[1])
+        solid = Capsule if kind == _CAPSULE else Cylinder
+        return solid(start=(0.0, 0.0, -h), end=(0.0, 0.0, h), radius=r, material=material)
     v, f = _mesh_of(kind, scale, model.shape_source[s], s)
     return Mesh(vertices=v, faces=f, material=material)
 

@@ -12,10 +12,11 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
-from .scene.description import Material, Mesh, Scene, Sphere, is_area_light
+from .scene.description import SOLID_TYPES, Material, Mesh, Scene, Sphere, is_area_light
 
 # shape kinds, as reported by ray queries and id AOVs, and as area lights name their surface
 KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
+KIND_BOX, KIND_CAPSULE, KIND_CYLINDER = 5, 6, 7  # the posed solids (``SolidRec``)
 FALLOFF_DIRECTIONAL = 2  # PointLightRec.inv_sq of a directional light (0: none, 1: inverse square)
 FRESNEL_IDS = {"none": 0, "schlick": 1, "exact": 2}
 
@@ -31,6 +32,7 @@ class Features:
     glossy: bool = False  # glossy reflection or frosted refraction lobes
     lens: bool = False  # thin-lens depth of field
     motion: bool = False  # moving objects or camera (motion blur)
+    solids: bool = False  # analytic boxes, capsules and cylinders (intersected in their own frame)
 
     @classmethod
     def full(cls) -> "Features":
@@ -70,6 +72,7 @@ def features_of(scene: Scene) -> Features:
         glossy=any(_glossy(m) for m in used),
         lens=scene.camera.aperture > 0.0,
         motion=scene.camera.moves or any(_moves(s) for s in scene.shapes),
+        solids=any(isinstance(s, SOLID_TYPES) for s in scene.shapes),
     )
 
 
@@ -77,7 +80,7 @@ def _moves(shape) -> bool:
     if isinstance(shape, Sphere):
         c0, c1, _ = shape.world()
         return c0 != c1
-    return isinstance(shape, Mesh) and shape.moves
+    return isinstance(shape, (Mesh, *SOLID_TYPES)) and shape.moves
 
 
 # --- device records ----------------------------------------------------------------------------
@@ -113,6 +116,24 @@ class DiskRec:
     n: wp.vec3  # unit normal
     r: float
     mat: int
+
+
+@wp.struct
+class SolidRec:
+    """A box, capsule or cylinder in its own frame, posed at times 0 and 1 (rotations by slerp).
+
+    Box: ``size`` holds the half extents along the local axes. Capsule (the points within radius
+    r of the segment from (0, -h, 0) to (0, h, 0)) and cylinder (radius r about the local y
+    axis, |y| <= h, flat caps): ``size`` = (r, h, 0)."""
+
+    pos0: wp.vec3  # the centre at time 0
+    rot0: wp.quat  # local to world at time 0
+    pos1: wp.vec3
+    rot1: wp.quat  # in rot0's hemisphere (slerp along the shorter arc)
+    size: wp.vec3
+    mat: int
+    lo: wp.vec3  # the world box over the shutter (padded): rays that miss it skip the solid
+    hi: wp.vec3
 
 
 @wp.struct
@@ -170,7 +191,7 @@ class SceneData:
 
     n_spheres: int
     spheres: wp.array(dtype=SphereRec)
-    bvh: wp.uint64  # BVH over the bounded analytic shapes (spheres, rectangles, disks), 0 when they are few
+    bvh: wp.uint64  # BVH over the bounded analytic shapes (all but planes and meshes), 0 when they are few
     bvh_root: int  # the node rays start from: -1 for the whole BVH, a world's group root in a batch
     bvh_prims: wp.array(dtype=wp.vec2i)  # (kind, row) of each BVH primitive
     n_planes: int
@@ -181,6 +202,12 @@ class SceneData:
     disks: wp.array(dtype=DiskRec)
     n_inst: int
     insts: wp.array(dtype=InstRec)
+    n_boxes: int
+    boxes: wp.array(dtype=SolidRec)
+    n_capsules: int
+    capsules: wp.array(dtype=SolidRec)
+    n_cylinders: int
+    cylinders: wp.array(dtype=SolidRec)
     normals: wp.array(dtype=wp.vec3)
     mats: wp.array(dtype=MatRec)
     n_plights: int

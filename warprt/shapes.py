@@ -24,13 +24,15 @@ import warp as wp
 
 from .geometry import intersect_sphere, max_abs
 from .records import (
-    KIND_DISK, KIND_PLANE, KIND_RECT, KIND_SPHERE, DiskRec, PlaneRec, RectRec, SceneData, SphereRec,
+    KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_PLANE, KIND_RECT, KIND_SPHERE, DiskRec, PlaneRec, RectRec,
+    SceneData, SolidRec, SphereRec,
 )
 from .sampling import (
     frame_from_z, grid_bilinear_pdf, is_rectangle_edges, square_to_cone, square_to_disk, square_to_grid_bilinear,
     square_to_spherical_rect,
 )
-from .scene.description import Disk, Plane, Rectangle, Sphere
+from .scene.description import Box, Capsule, Cylinder, Disk, Plane, Rectangle, Sphere
+from .scene.transform import quaternion_matrix
 
 
 def _unit(v) -> tuple[float, float, float]:
@@ -97,6 +99,37 @@ def _disk_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
     return c - ext, c + ext
 
 
+def _solid_row(s, mat: int) -> dict:
+    pos0, rot0, pos1, rot1, size = s.world()
+    row = dict(pos0=pos0, rot0=rot0, pos1=pos1, rot1=rot1, size=size, mat=mat)
+    lo, hi = _solid_bounds(BY_CLASS[type(s)].tag)(row)
+    pad = (hi - lo).max() * 1e-6 + np.maximum(np.abs(lo), np.abs(hi)).max() * 1e-6 + 1e-30
+    return dict(row, lo=tuple(lo - pad), hi=tuple(hi + pad))
+
+
+def solid_extent(tag: int, size) -> np.ndarray:
+    """Half extents of a solid's box in its own frame (``SolidRec.size`` of kind ``tag``)."""
+    r, h = float(size[0]), float(size[1])
+    if tag == KIND_BOX:
+        return np.abs(np.asarray(size, np.float64))
+    if tag == KIND_CAPSULE:
+        return np.array([r, h + r, r])
+    return np.array([r, h, r])
+
+
+def _solid_bounds(tag: int):
+    def bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
+        ext = solid_extent(tag, row["size"])
+        p0, p1 = np.asarray(row["pos0"], np.float64), np.asarray(row["pos1"], np.float64)
+        if np.array_equal(p0, p1) and np.array_equal(row["rot0"], row["rot1"]):
+            e = np.abs(quaternion_matrix(row["rot0"])) @ ext
+            return p0 - e, p0 + e
+        # moving: slerp keeps every point within |ext| of the centre, which moves linearly
+        e = float(np.linalg.norm(ext))
+        return np.minimum(p0, p1) - e, np.maximum(p0, p1) + e
+    return bounds
+
+
 @dataclass(frozen=True)
 class ShapeKind:
     tag: int  # KIND_*: reported by ray queries and id AOVs, named by area lights
@@ -112,6 +145,9 @@ KINDS = (
     ShapeKind(KIND_PLANE, Plane, "planes", PlaneRec, _plane_row, None),
     ShapeKind(KIND_RECT, Rectangle, "rects", RectRec, _rect_row, _rect_bounds),
     ShapeKind(KIND_DISK, Disk, "disks", DiskRec, _disk_row, _disk_bounds),
+    ShapeKind(KIND_BOX, Box, "boxes", SolidRec, _solid_row, _solid_bounds(KIND_BOX)),
+    ShapeKind(KIND_CAPSULE, Capsule, "capsules", SolidRec, _solid_row, _solid_bounds(KIND_CAPSULE)),
+    ShapeKind(KIND_CYLINDER, Cylinder, "cylinders", SolidRec, _solid_row, _solid_bounds(KIND_CYLINDER)),
 )
 BY_CLASS = {k.cls: k for k in KINDS}
 BY_TAG = {k.tag: k for k in KINDS}

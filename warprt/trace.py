@@ -22,10 +22,14 @@ import warp as wp
 
 from ._warp import build_once
 from .geometry import (
-    SPAWN_REL, abs3, ray_box, disk_extent, intersect_disk, intersect_plane, intersect_rect, intersect_sphere, max_abs,
-    quat_rotate_mag, refine_on_plane, refine_on_sphere, spawn_offset, sphere_roots,
+    SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
+    intersect_plane, intersect_rect, intersect_sphere, max_abs, quat_rotate_mag, ray_box, refine_on_plane,
+    refine_on_sphere, spawn_offset, sphere_roots,
 )
-from .records import KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE, Features, InstRec, SceneData
+from .records import (
+    KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE,
+    Features, InstRec, SceneData, SolidRec,
+)
 
 TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
@@ -94,6 +98,16 @@ def on_plane(h_in: Hit, p: wp.vec3, p0: wp.vec3, n: wp.vec3, mat: int) -> Hit:
 
 
 @wp.func
+def turned_extent(q: wp.quat, e: wp.vec3) -> wp.vec3:
+    """Half extents of the world box around a box of half extents e turned by q."""
+    m = wp.quat_to_matrix(q)
+    ext = wp.vec3(0.0)
+    for k in range(3):
+        ext[k] = wp.abs(m[k, 0]) * e[0] + wp.abs(m[k, 1]) * e[1] + wp.abs(m[k, 2]) * e[2]
+    return ext
+
+
+@wp.func
 def instance_box(rec: InstRec) -> InstRec:
     """``rec`` with its world box (``lo``, ``hi``) from its object box (``olo``, ``ohi``) and pose:
     the transformed box, padded; when the pose at time 1 differs, the boxes of the sphere about
@@ -102,11 +116,7 @@ def instance_box(rec: InstRec) -> InstRec:
     r = rec
     c = (rec.olo + rec.ohi) * 0.5
     e = (rec.ohi - rec.olo) * 0.5
-    m = wp.quat_to_matrix(rec.rot0)
-    se = wp.cw_mul(abs3(rec.scl0), e)
-    ext = wp.vec3(0.0)
-    for k in range(3):
-        ext[k] = wp.abs(m[k, 0]) * se[0] + wp.abs(m[k, 1]) * se[1] + wp.abs(m[k, 2]) * se[2]
+    ext = turned_extent(rec.rot0, wp.cw_mul(abs3(rec.scl0), e))
     wc = wp.quat_rotate(rec.rot0, wp.cw_mul(c, rec.scl0)) + rec.pos0
     lo = wc - ext
     hi = wc + ext
@@ -119,6 +129,50 @@ def instance_box(rec: InstRec) -> InstRec:
         r0 = wp.length(wp.cw_mul(far, abs3(rec.scl0)))
         r1 = wp.length(wp.cw_mul(far, abs3(rec.scl1)))
         rr = wp.max(r0, r1)
+        lo = wp.min(rec.pos0, rec.pos1) - wp.vec3(rr, rr, rr)
+        hi = wp.max(rec.pos0, rec.pos1) + wp.vec3(rr, rr, rr)
+    pad = (wp.max(hi - lo) + wp.max(abs3(lo) + abs3(hi))) * 1.0e-6 + 1.0e-30
+    r.lo = lo - wp.vec3(pad, pad, pad)
+    r.hi = hi + wp.vec3(pad, pad, pad)
+    return r
+
+
+@wp.func(inline=True)
+def posed_solid(base: SceneData, kind: int, row: int) -> SolidRec:
+    """Row ``row`` of solid table ``kind``."""
+    if kind == KIND_BOX:
+        return base.boxes[row]
+    if kind == KIND_CAPSULE:
+        return base.capsules[row]
+    return base.cylinders[row]
+
+
+@wp.func
+def solid_extent(kind: int, size: wp.vec3) -> wp.vec3:
+    """Half extents of a solid's box in its own frame (as ``shapes.solid_extent``)."""
+    if kind == KIND_BOX:
+        return size
+    if kind == KIND_CAPSULE:
+        return wp.vec3(size[0], size[1] + size[0], size[0])
+    return wp.vec3(size[0], size[1], size[0])
+
+
+@wp.func
+def solid_box(rec: SolidRec, kind: int) -> SolidRec:
+    """``rec`` with its world box (``lo``, ``hi``), as ``instance_box`` does for an instance: the
+    turned box, or, when the pose at time 1 differs, the boxes of the sphere about the centre
+    that holds the solid at both ends; padded."""
+    r = rec
+    e = solid_extent(kind, rec.size)
+    ext = turned_extent(rec.rot0, e)
+    lo = rec.pos0 - ext
+    hi = rec.pos0 + ext
+    moved = wp.max(abs3(rec.pos1 - rec.pos0)) > 0.0
+    for k in range(4):
+        if rec.rot1[k] != rec.rot0[k]:
+            moved = True
+    if moved:
+        rr = wp.length(e)
         lo = wp.min(rec.pos0, rec.pos1) - wp.vec3(rr, rr, rr)
         hi = wp.max(rec.pos0, rec.pos1) + wp.vec3(rr, rr, rr)
     pad = (wp.max(hi - lo) + wp.max(abs3(lo) + abs3(hi))) * 1.0e-6 + 1.0e-30
@@ -215,6 +269,121 @@ def make_trace(F: Features) -> SimpleNamespace:
         return c
 
     @wp.func(inline=True)
+    def crossing(scene: SceneData, mat: int) -> wp.vec3:
+        """Light passing one surface of material ``mat`` in a shadow ray: kt, or 0 when opaque."""
+        if wp.static(F.refraction):
+            return scene.mats[mat].kt
+        return wp.vec3(0.0, 0.0, 0.0)
+
+    @wp.func(inline=True)
+    def solid_pose(rec: SolidRec, time: float) -> Pose:
+        """A box's, capsule's or cylinder's frame at ``time`` (scale 1)."""
+        pose = Pose()
+        pose.pos = rec.pos0
+        pose.rot = rec.rot0
+        pose.scl = wp.vec3(1.0, 1.0, 1.0)
+        if wp.static(F.motion):
+            pose.pos = pose.pos + (rec.pos1 - pose.pos) * time
+            pose.rot = wp.quat_slerp(pose.rot, rec.rot1, time)
+        return pose
+
+    solid_rec = posed_solid
+
+    @wp.func
+    def solid_interval(k: int, rec: SolidRec, pose: Pose, o: wp.vec3, d: wp.vec3) -> wp.vec4:
+        """The ray's interval inside solid ``rec`` of kind k posed at ``pose`` (see geometry)."""
+        o_l = wp.quat_rotate_inv(pose.rot, o - pose.pos)
+        d_l = wp.quat_rotate_inv(pose.rot, d)
+        if k == KIND_BOX:
+            return box_roots(o_l, d_l, rec.size)
+        if k == KIND_CAPSULE:
+            return capsule_roots(o_l, d_l, rec.size[0], rec.size[1])
+        return cylinder_roots(o_l, d_l, rec.size[0], rec.size[1])
+
+    @wp.func(inline=True)
+    def solid_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float,
+                  k: int, i: int) -> float:
+        rec = solid_rec(scene, k, i)
+        return interval_hit(solid_interval(k, rec, solid_pose(rec, time), o, d), t_min, t_max)
+
+    @wp.func(inline=True)
+    def solid_hit_boxed(scene: SceneData, o: wp.vec3, d: wp.vec3, inv_d: wp.vec3, t_min: float, t_max: float,
+                        time: float, k: int, i: int) -> float:
+        """``solid_hit`` after the solid's world box (a loop over a table has no BVH to cull)."""
+        rec = solid_rec(scene, k, i)
+        if not ray_box(o, inv_d, rec.lo, rec.hi, t_min, t_max):
+            return -1.0
+        return interval_hit(solid_interval(k, rec, solid_pose(rec, time), o, d), t_min, t_max)
+
+    @wp.func
+    def solid_details(rec: SolidRec, h_in: Hit, o: wp.vec3, d: wp.vec3, time: float) -> Hit:
+        """h_in (a solid's hit at h_in.t) with its point refined onto the surface, its normal and
+        material. The point is found in the solid's frame: on a box face the face's coordinate
+        is set exactly and the others clamped to the face; on a cylinder side or a capsule the
+        point is put at radius r from the axis (the segment)."""
+        h = h_in
+        k = h.kind
+        pose = solid_pose(rec, time)
+        o_l = wp.quat_rotate_inv(pose.rot, o - pose.pos)
+        d_l = wp.quat_rotate_inv(pose.rot, d)
+        iv = solid_interval(k, rec, pose, o, d)
+        entering = wp.abs(iv[0] - h.t) <= wp.abs(iv[1] - h.t)
+        code = iv[3]
+        out = float(1.0)  # the normal points along d where the ray leaves, against it where it enters
+        if entering:
+            code = iv[2]
+            out = -1.0
+        p = o_l + d_l * h.t
+        n = wp.vec3(0.0)
+        sz = rec.size
+        if k == KIND_BOX:
+            a = int(code)
+            for j in range(3):
+                p[j] = wp.clamp(p[j], -sz[j], sz[j])
+            side = wp.where(d_l[a] * out >= 0.0, 1.0, -1.0)
+            p[a] = side * sz[a]
+            n[a] = side
+        elif k == KIND_CYLINDER and code > 0.5:  # a cap
+            side = wp.where(d_l[1] * out >= 0.0, 1.0, -1.0)
+            p[1] = side * sz[1]
+            rad = wp.sqrt(p[0] * p[0] + p[2] * p[2])
+            if rad > sz[0]:
+                p[0] = p[0] * (sz[0] / rad)
+                p[2] = p[2] * (sz[0] / rad)
+            n[1] = side
+        else:  # a cylinder's side, or a capsule: from the nearest point of the axis segment
+            axis = wp.vec3(0.0, wp.clamp(p[1], -sz[1], sz[1]), 0.0)
+            v = p - axis
+            lv = wp.length(v)
+            if lv > 0.0:
+                n = v / lv
+            else:
+                n = -d_l
+            p = axis + n * sz[0]
+        h.p = wp.quat_rotate(pose.rot, p) + pose.pos
+        h.ng = wp.normalize(wp.quat_rotate(pose.rot, n))
+        h.ns = h.ng
+        h.mag = quat_rotate_mag(pose.rot, abs3(p)) + abs3(pose.pos) + abs3(h.p)
+        h.mat = rec.mat
+        return h
+
+    @wp.func(inline=True)
+    def solid_crossings(scene: SceneData, o: wp.vec3, d: wp.vec3, inv_d: wp.vec3, t_max: float, time: float,
+                        k: int, i: int) -> wp.vec3:
+        """Transmission through solid (k, i) along (o, d) over (0, t_max): kt per surface crossed
+        (1 when the ray misses the solid's box)."""
+        rec = solid_rec(scene, k, i)
+        T = wp.vec3(1.0, 1.0, 1.0)
+        if not ray_box(o, inv_d, rec.lo, rec.hi, 0.0, t_max):
+            return T
+        iv = solid_interval(k, rec, solid_pose(rec, time), o, d)
+        if iv[0] <= iv[1]:
+            for j in range(2):
+                if iv[j] > 0.0 and iv[j] < t_max:
+                    T = wp.cw_mul(T, crossing(scene, rec.mat))
+        return T
+
+    @wp.func(inline=True)
     def bounded_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float,
                     k: int, i: int) -> float:
         """The hit t of the bounded analytic shape (kind k, row i) in (t_min, t_max), or -1."""
@@ -222,6 +391,9 @@ def make_trace(F: Features) -> SimpleNamespace:
             return intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, t_max)
         if k == KIND_RECT:
             return intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, t_min, t_max)
+        if wp.static(F.solids):
+            if k >= KIND_BOX:
+                return solid_hit(scene, o, d, t_min, t_max, time, k, i)
         return intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, t_min, t_max)
 
     @wp.func(inline=True)
@@ -230,6 +402,9 @@ def make_trace(F: Features) -> SimpleNamespace:
             return scene.spheres[i].mat
         if k == KIND_RECT:
             return scene.rects[i].mat
+        if wp.static(F.solids):
+            if k >= KIND_BOX:
+                return solid_rec(scene, k, i).mat
         return scene.disks[i].mat
 
     @wp.func
@@ -359,6 +534,26 @@ def make_trace(F: Features) -> SimpleNamespace:
                     best = t
                     kind = KIND_DISK
                     index = i
+            if wp.static(F.solids):
+                inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
+                for i in range(scene.n_boxes):
+                    t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, KIND_BOX, i)
+                    if t >= 0.0:
+                        best = t
+                        kind = KIND_BOX
+                        index = i
+                for i in range(scene.n_capsules):
+                    t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, KIND_CAPSULE, i)
+                    if t >= 0.0:
+                        best = t
+                        kind = KIND_CAPSULE
+                        index = i
+                for i in range(scene.n_cylinders):
+                    t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, KIND_CYLINDER, i)
+                    if t >= 0.0:
+                        best = t
+                        kind = KIND_CYLINDER
+                        index = i
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
@@ -406,14 +601,10 @@ def make_trace(F: Features) -> SimpleNamespace:
         if wp.static(F.meshes):
             if kind == KIND_MESH:
                 h = mesh_details(scene, h, o, d, face, bu, bv, time)
+        if wp.static(F.solids):
+            if kind >= KIND_BOX:
+                h = solid_details(solid_rec(scene, kind, index), h, o, d, time)
         return h
-
-    @wp.func(inline=True)
-    def crossing(scene: SceneData, mat: int) -> wp.vec3:
-        """Light passing one surface of material ``mat`` in a shadow ray: kt, or 0 when opaque."""
-        if wp.static(F.refraction):
-            return scene.mats[mat].kt
-        return wp.vec3(0.0, 0.0, 0.0)
 
     @wp.func(inline=True)
     def sphere_crossings(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float, i: int) -> wp.vec3:
@@ -488,6 +679,10 @@ def make_trace(F: Features) -> SimpleNamespace:
                 i = scene.bvh_prims[j][1]
                 if k == KIND_SPHERE:
                     T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
+                elif k >= KIND_BOX:
+                    if wp.static(F.solids):
+                        T = wp.cw_mul(T, solid_crossings(scene, o, d, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d), t_max,
+                                                         time, k, i))
                 elif bounded_hit(scene, o, d, 0.0, t_max, time, k, i) >= 0.0:
                     T = wp.cw_mul(T, crossing(scene, bounded_mat(scene, k, i)))
                 if wp.max(T) <= 0.0:
@@ -501,6 +696,20 @@ def make_trace(F: Features) -> SimpleNamespace:
             for i in range(scene.n_disks):
                 if intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, 0.0, t_max) >= 0.0:
                     T = wp.cw_mul(T, crossing(scene, scene.disks[i].mat))
+                    if wp.max(T) <= 0.0:
+                        return wp.vec3(0.0, 0.0, 0.0)
+            if wp.static(F.solids):
+                inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
+                for i in range(scene.n_boxes):
+                    T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, KIND_BOX, i))
+                    if wp.max(T) <= 0.0:
+                        return wp.vec3(0.0, 0.0, 0.0)
+                for i in range(scene.n_capsules):
+                    T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, KIND_CAPSULE, i))
+                    if wp.max(T) <= 0.0:
+                        return wp.vec3(0.0, 0.0, 0.0)
+                for i in range(scene.n_cylinders):
+                    T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, KIND_CYLINDER, i))
                     if wp.max(T) <= 0.0:
                         return wp.vec3(0.0, 0.0, 0.0)
         if wp.static(F.meshes):
@@ -519,4 +728,5 @@ def make_trace(F: Features) -> SimpleNamespace:
         return transmittance(scene, origin, to_t / dist, dist - stop_short, time)
 
     return SimpleNamespace(closest_hit=closest_hit, transmittance=transmittance, shadow=shadow,
-                           sphere_center=sphere_center, instance_pose=instance_pose)
+                           sphere_center=sphere_center, instance_pose=instance_pose, solid_pose=solid_pose,
+                           solid_rec=solid_rec)

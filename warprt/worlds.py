@@ -7,10 +7,10 @@ builds the scene once and keeps, on the device:
 
 * ``shape_poses`` (W, S) ``wp.transform``: a rigid pose applied on top of each of the scene's S
   shapes as described (identity by default). Spheres: the centre is moved and turned (the radius
-  stays); planes, rectangles and disks: moved and turned; meshes: the pose is composed with the
-  shape's own transform (pose ∘ transform, so a mesh keeps its scale). ``shape_poses_end`` holds
-  the poses at shutter close (motion blur, ``motion_blur=True``); planes, rectangles and disks
-  take the shutter-open pose.
+  stays); planes, rectangles and disks: moved and turned; meshes, boxes, capsules and cylinders:
+  the pose is composed with the shape's own transform (pose ∘ transform, so a shape keeps its
+  scale). ``shape_poses_end`` holds the poses at shutter close (motion blur,
+  ``motion_blur=True``); planes, rectangles and disks take the shutter-open pose.
 * ``light_positions`` (W, L) ``vec3``: the position of each point light and the direction of
   travel of each directional light (L = those lights, in ``scene.lights`` order). Area lights
   are the same in every world.
@@ -51,13 +51,13 @@ from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_
 from .integrator import kernels_for
 from .memory import check_memory
 from .records import (
-    FALLOFF_DIRECTIONAL, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE, CameraData, DiskRec, Features, InstRec,
-    PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SphereRec,
+    FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
+    CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SolidRec, SphereRec,
 )
-from .render import SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, run_pass
+from .render import SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
-from .trace import instance_box
+from .trace import instance_box, posed_solid, solid_box
 
 # default slices of a batch: at least SLICES_PER_WORKER per worker, and at most this many rows each.
 # 64 worlds x 2 cameras x 128 rows on 2 workers: 8 slices 286 ms, 32 slices 250 ms, 128 252 ms,
@@ -75,6 +75,9 @@ class WorldTables:
     rects: wp.array2d(dtype=RectRec)
     disks: wp.array2d(dtype=DiskRec)
     insts: wp.array2d(dtype=InstRec)
+    boxes: wp.array2d(dtype=SolidRec)
+    capsules: wp.array2d(dtype=SolidRec)
+    cylinders: wp.array2d(dtype=SolidRec)
     plights: wp.array2d(dtype=PointLightRec)
 
 
@@ -87,6 +90,9 @@ def world_scene(scene: SceneData, tables: WorldTables, w: int) -> SceneData:
     sc.rects = tables.rects[w]
     sc.disks = tables.disks[w]
     sc.insts = tables.insts[w]
+    sc.boxes = tables.boxes[w]
+    sc.capsules = tables.capsules[w]
+    sc.cylinders = tables.cylinders[w]
     sc.plights = tables.plights[w]
     if scene.bvh != wp.uint64(0):
         sc.bvh_root = wp.bvh_get_group_root(scene.bvh, w)
@@ -140,6 +146,23 @@ def _pose_kernels():
                 rot1 = -rot1
             ins.rot1 = rot1
             tables.insts[w, row] = instance_box(ins)
+        elif kind >= KIND_BOX:
+            rec = posed_solid(base, kind, row)
+            q1 = wp.transform_get_rotation(T1)
+            rec.pos0 = wp.transform_point(T0, rec.pos0)
+            rec.rot0 = wp.normalize(q0 * rec.rot0)
+            rec.pos1 = wp.transform_point(T1, rec.pos1)
+            rot1 = wp.normalize(q1 * rec.rot1)
+            if wp.dot(rot1, rec.rot0) < 0.0:
+                rot1 = -rot1
+            rec.rot1 = rot1
+            rec = solid_box(rec, kind)
+            if kind == KIND_BOX:
+                tables.boxes[w, row] = rec
+            elif kind == KIND_CAPSULE:
+                tables.capsules[w, row] = rec
+            else:
+                tables.cylinders[w, row] = rec
 
     @wp.kernel(module="warprt_worlds", enable_backward=False)
     def pose_lights(base: SceneData, positions: wp.array2d(dtype=wp.vec3), tables: WorldTables):
@@ -193,11 +216,19 @@ def _pose_kernels():
             q = tables.rects[w, row]
             lo = wp.min(wp.min(q.c, q.c + q.e1), wp.min(q.c + q.e2, q.c + q.e1 + q.e2))
             hi = wp.max(wp.max(q.c, q.c + q.e1), wp.max(q.c + q.e2, q.c + q.e1 + q.e2))
-        else:
+        elif kind == KIND_DISK:
             dk = tables.disks[w, row]
             ext = disk_extent(dk.n, dk.r)
             lo = dk.c - ext
             hi = dk.c + ext
+        else:  # a solid: its box, computed when it was posed
+            rec = tables.boxes[w, row]
+            if kind == KIND_CAPSULE:
+                rec = tables.capsules[w, row]
+            elif kind == KIND_CYLINDER:
+                rec = tables.cylinders[w, row]
+            lo = rec.lo
+            hi = rec.hi
         size = wp.max(hi - lo)
         big = wp.max(wp.max(wp.abs(lo[0]), wp.abs(lo[1])), wp.max(wp.abs(lo[2]), wp.max(wp.abs(hi[0]),
                       wp.max(wp.abs(hi[1]), wp.abs(hi[2])))))
@@ -227,17 +258,20 @@ def batch_kernel_for(F: Features):
     @wp.kernel(module="unique", enable_backward=False)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
                      row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
-                     n_cams: int, height: int, width: int):
-        # this launch's pixels: rows row0, row0 + stride, ... of the tall image (W·C·H rows)
-        tid = wp.tid()
-        px = tid % width
-        gy = row0 + (tid / width) * stride
+                     n_cams: int, height: int, width: int, run: int):
+        # this launch's pixels: rows row0, row0 + stride, ... of the tall image (W·C·H rows), ``run``
+        # consecutive pixels of one row per thread (``run`` divides the width)
+        k0 = wp.tid() * run
+        gy = row0 + (k0 / width) * stride
         image = gy / height
         if image >= cams.shape[0]:
             return
-        w = image / n_cams
-        render_pixel(world_scene(scene, tables, w), cams[image], params, px, gy - image * height, gy * width + px,
-                     s0, s1, film)
+        sc = world_scene(scene, tables, image / n_cams)
+        cam = cams[image]
+        py = gy - image * height
+        for k in range(k0, k0 + run):
+            px = k % width
+            render_pixel(sc, cam, params, px, py, gy * width + px, s0, s1, film)
 
     return batch_render
 
@@ -350,7 +384,7 @@ class BatchRenderer:
 
         # per-world tables: world w starts as the scene itself
         self.tables = WorldTables()
-        for name in ("spheres", "planes", "rects", "disks", "insts", "plights"):
+        for name in ("spheres", "planes", "rects", "disks", "insts", "boxes", "capsules", "cylinders", "plights"):
             base = getattr(d, name)
             host = base.numpy()
             setattr(self.tables, name, wp.array(np.repeat(host[None], W, axis=0), dtype=base.dtype, device=dev))
@@ -382,7 +416,8 @@ class BatchRenderer:
         for name in SceneData.vars:
             setattr(self.scene_data, name, getattr(d, name))
         prims = [(KIND_SPHERE, i) for i in range(d.n_spheres)] + [(KIND_RECT, i) for i in range(d.n_rects)] \
-            + [(KIND_DISK, i) for i in range(d.n_disks)]
+            + [(KIND_DISK, i) for i in range(d.n_disks)] + [(KIND_BOX, i) for i in range(d.n_boxes)] \
+            + [(KIND_CAPSULE, i) for i in range(d.n_capsules)] + [(KIND_CYLINDER, i) for i in range(d.n_cylinders)]
         self._per_world = len(prims)
         self.bvh = None
         self.scene_data.bvh = wp.uint64(0)
@@ -496,8 +531,9 @@ class BatchRenderer:
             n_slices = _positive_int(slices, "slices")
         n_slices = n_slices if dev.is_cpu else 1
         params = render_params(self.scene, spp, int(seed), self.features)
+        run = pixels_per_thread(dev, self.width)
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
-                  self.height, self.width]
+                  self.height, self.width, run]
         if not self._loaded:  # load the modules from this thread (workers must not race to build them)
             self._update_tables()
             wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
@@ -515,7 +551,7 @@ class BatchRenderer:
         for first, stride, count in _slices(self.width, rows, n_slices):
             args = list(inputs)
             args[3], args[4] = first, stride
-            launches.append(wp.launch(self._kernel, dim=count, device=dev, inputs=args, record_cmd=True))
+            launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
         wp.launch(_image_kernel(), dim=self._color.shape[0], device=dev,
                   inputs=[self.film.data.accum, 1.0 / float(spp), self._color])

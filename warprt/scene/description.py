@@ -294,6 +294,148 @@ class Disk:
         _check_material(self)
 
 
+def _quat_mul(a, b) -> np.ndarray:
+    """The rotation b, then a, as one quaternion (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+
+
+def _quat_y_to(v) -> np.ndarray:
+    """The shortest rotation taking the y axis to the direction of ``v`` (identity for v = 0)."""
+    v = np.asarray(v, np.float64)
+    n = np.linalg.norm(v)
+    if n == 0.0:
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    u = v / n
+    if u[1] < -1.0 + 1e-12:  # straight down: half a turn about x
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    q = np.array([u[2], 0.0, -u[0], 1.0 + u[1]])  # (y × u, 1 + y·u), normalised
+    return q / np.linalg.norm(q)
+
+
+class _Posed:
+    """What boxes, capsules and cylinders share: a ``transform`` (scale, rotate, translate) at
+    time 0, an optional ``transform_end`` at time 1 (motion blur), ``keyframes`` like a mesh's."""
+
+    def _check_pose(self, uniform: bool) -> None:
+        set_field(self, "keyframes",
+                  as_keyframes(self.keyframes, "keyframes", ("translate", "rotate", "quaternion", "scale")))
+        _check_material(self)
+        set_field(self, "transform", as_transform(self.transform, "transform"))
+        set_field(self, "transform_end", as_transform(self.transform_end, "transform_end"))
+        what = type(self).__name__.lower()
+        for name in ("transform", "transform_end"):
+            t = getattr(self, name)
+            if uniform and t is not None and t.uniform_scale is None:
+                raise SceneError(f"a {what} takes only a uniform positive scale (a stretched one is no longer a "
+                                 f"{what}; use a mesh)", f"{name}.scale")
+        t0, t1 = self.transform or Transform(), self.transform_end
+        if t1 is not None and not np.allclose(np.abs(t1.scale), np.abs(t0.scale), rtol=1e-12, atol=0.0):
+            raise SceneError(f"the end pose must keep the scale of the start pose ({list(t0.scale)}), got "
+                             f"{list(t1.scale)}", "transform_end.scale")
+
+    @property
+    def moves(self) -> bool:
+        return self.transform_end is not None and self.transform_end != (self.transform or Transform())
+
+    def _poses(self, center, q_local) -> tuple:
+        """(pos0, rot0, pos1, rot1): the local frame (centred on ``center``, turned by ``q_local``)
+        placed by the transforms at times 0 and 1 (rot1 in rot0's hemisphere)."""
+        t0 = self.transform or Transform()
+        t1 = self.transform_end or t0
+        r0 = _quat_mul(t0.quaternion(), q_local)
+        r1 = _quat_mul(t1.quaternion(), q_local)
+        if float(np.dot(r0, r1)) < 0.0:
+            r1 = -r1
+        return t0.apply_point(center), tuple(float(x) for x in r0), t1.apply_point(center), tuple(float(x) for x in r1)
+
+
+@checked_keywords
+@dataclass(frozen=True)
+class Box(_Posed):
+    """A solid box with edges ``size`` along its own x, y and z axes, centred on ``center``;
+    ``transform`` places it (any scale: it scales the edges), ``transform_end`` at time 1."""
+
+    center: Vec3 = (0.0, 0.0, 0.0)
+    size: Vec3 = (1.0, 1.0, 1.0)  # full edge lengths
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+    transform_end: Transform | None = None
+    keyframes: tuple = ()  # animation: [{time, translate, rotate or quaternion, scale}, ...]
+
+    def __post_init__(self):
+        set_field(self, "center", as_vec3(self.center, "center"))
+        size = as_vec3(self.size, "size")
+        for i, c in enumerate(size):
+            as_float(c, f"size[{i}]", minimum=0.0, strict_min=True, float32="normal")
+        set_field(self, "size", size)
+        self._check_pose(uniform=False)
+
+    def world(self) -> tuple:
+        """(pos0, rot0, pos1, rot1, half extents) of the box in world space."""
+        t = self.transform or Transform()
+        half = tuple(0.5 * c * abs(s) for c, s in zip(self.size, t.scale))
+        return (*self._poses(self.center, np.array([0.0, 0.0, 0.0, 1.0])), half)
+
+
+class _Round(_Posed):
+    def _check_round(self) -> None:
+        set_field(self, "start", as_vec3(self.start, "start"))
+        set_field(self, "end", as_vec3(self.end, "end"))
+        set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
+        self._check_pose(uniform=True)
+
+    def world(self) -> tuple:
+        """(pos0, rot0, pos1, rot1, (radius, half length, 0)): local y runs from start to end."""
+        a, b = np.asarray(self.start, np.float64), np.asarray(self.end, np.float64)
+        s = (self.transform or Transform()).uniform_scale or 1.0
+        size = (self.radius * s, 0.5 * float(np.linalg.norm(b - a)) * s, 0.0)
+        return (*self._poses(tuple(0.5 * (a + b)), _quat_y_to(b - a)), size)
+
+
+@checked_keywords
+@dataclass(frozen=True)
+class Capsule(_Round):
+    """The points within ``radius`` of the segment from ``start`` to ``end``: a cylinder with a
+    hemisphere at each end (start = end gives a sphere). A uniform scale only."""
+
+    start: Vec3 = (0.0, -0.5, 0.0)
+    end: Vec3 = (0.0, 0.5, 0.0)
+    radius: float = 0.25
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+    transform_end: Transform | None = None
+    keyframes: tuple = ()
+
+    def __post_init__(self):
+        self._check_round()
+
+
+@checked_keywords
+@dataclass(frozen=True)
+class Cylinder(_Round):
+    """A solid circular cylinder of ``radius`` about the segment from ``start`` to ``end``, closed
+    by flat caps. A uniform scale only."""
+
+    start: Vec3 = (0.0, -0.5, 0.0)
+    end: Vec3 = (0.0, 0.5, 0.0)
+    radius: float = 0.25
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+    transform_end: Transform | None = None
+    keyframes: tuple = ()
+
+    def __post_init__(self):
+        self._check_round()
+        if self.start == self.end:
+            raise SceneError("start and end are the same point: the cylinder has no height", "end")
+
+
+SOLID_TYPES = (Box, Capsule, Cylinder)
+
+
 @checked_keywords
 @dataclass(frozen=True, eq=False)
 class Mesh:
@@ -578,6 +720,10 @@ def scene_extent(scene: "Scene") -> float:
             values += [abs(a) + abs(b) + abs(d) for a, b, d in zip(c, e1, e2)]
         elif isinstance(s, Disk):
             values += [abs(x) + s.radius for x in s.center]
+        elif isinstance(s, SOLID_TYPES):
+            pos0, _, pos1, _, size = s.world()
+            reach = norm(size)
+            values += [abs(x) + reach for x in (*pos0, *pos1)]
     for light in scene.lights:
         if isinstance(light, PointLight):
             values += list(light.position)
@@ -591,9 +737,10 @@ def is_area_light(light) -> bool:
 
 # the one list of each: scene-file type names, the classes behind them (the loader, Scene's
 # validation and the package's exports read these)
-SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "mesh": Mesh}
+SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "box": Box, "capsule": Capsule,
+               "cylinder": Cylinder, "mesh": Mesh}
 LIGHT_TYPES = {"point": PointLight, "directional": DirectionalLight, "rectangle": RectLight, "sphere": SphereLight, "disk": DiskLight}
-Shape = Sphere | Plane | Rectangle | Disk | Mesh
+Shape = Sphere | Plane | Rectangle | Disk | Box | Capsule | Cylinder | Mesh
 Light = PointLight | DirectionalLight | RectLight | SphereLight | DiskLight
 
 
