@@ -187,7 +187,7 @@ def ray_box(o: wp.vec3, inv_d: wp.vec3, lo: wp.vec3, hi: wp.vec3, t_min: float, 
 SOLID_BIG = 3.0e38
 
 
-@wp.func
+@wp.func(inline=True)
 def box_roots(o: wp.vec3, d: wp.vec3, h: wp.vec3) -> wp.vec4:
     """The box |x_k| <= h_k: slab by slab (a ray parallel to a slab is inside it everywhere or
     nowhere; no 0 · inf)."""
@@ -214,7 +214,7 @@ def box_roots(o: wp.vec3, d: wp.vec3, h: wp.vec3) -> wp.vec4:
     return wp.vec4(tn, tf, an, af)
 
 
-@wp.func
+@wp.func(inline=True)
 def tube_roots(o: wp.vec3, d: wp.vec3, r: float) -> wp.vec2:
     """The infinite solid cylinder x² + z² <= r², in the form of ``sphere_roots``: the chord from
     the ray's closest approach to the axis (no cancellation in the discriminant), the root nearer
@@ -242,7 +242,7 @@ def tube_roots(o: wp.vec3, d: wp.vec3, r: float) -> wp.vec2:
     return wp.vec2(wp.min(q, other), wp.max(q, other))
 
 
-@wp.func
+@wp.func(inline=True)
 def cylinder_roots(o: wp.vec3, d: wp.vec3, r: float, h: float) -> wp.vec4:
     """The closed cylinder x² + z² <= r², |y| <= h: the tube cut by the slab of the caps."""
     side = tube_roots(o, d, r)
@@ -269,7 +269,7 @@ def cylinder_roots(o: wp.vec3, d: wp.vec3, r: float, h: float) -> wp.vec4:
     return wp.vec4(tin, tout, cin, cout)
 
 
-@wp.func
+@wp.func(inline=True)
 def capsule_roots(o: wp.vec3, d: wp.vec3, r: float, h: float) -> wp.vec4:
     """The capsule (points within r of the segment (0, ±h, 0)): a convex union of the open
     cylinder and two balls, so its interval is the hull of theirs."""
@@ -287,7 +287,7 @@ def capsule_roots(o: wp.vec3, d: wp.vec3, r: float, h: float) -> wp.vec4:
     return wp.vec4(tin, tout, 0.0, 0.0)
 
 
-@wp.func
+@wp.func(inline=True)
 def interval_hit(iv: wp.vec4, t_min: float, t_max: float) -> float:
     """The first boundary of the interval (iv[0], iv[1]) in the open range (t_min, t_max), or MISS."""
     if not (iv[0] <= iv[1]):

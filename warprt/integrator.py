@@ -74,12 +74,18 @@ def kernels_for(F: Features) -> SimpleNamespace:
         """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``
         (also the pixel's noise key: unique over everything one film holds)."""
         s_end = wp.min(s1, film.limit[pixel])  # the limit: adaptive sampling's count for this pixel
-        if s_end <= s0:
+        if s_end <= s0 and s0 > 0:
             return
-        acc = film.accum[pixel]
-        acc_sq = film.accum_sq[pixel]
+        # the first pass starts the sums (the film needs no zeroing); later passes add to them
+        acc = wp.vec3(0.0, 0.0, 0.0)
+        acc_sq = float(0.0)
         rays = int(0)
         dropped = int(0)
+        if s0 > 0:
+            acc = film.accum[pixel]
+            acc_sq = film.accum_sq[pixel]
+            rays = film.rays[pixel]
+            dropped = film.overflow[pixel]
         stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
         for s in range(s0, s_end):
@@ -216,8 +222,8 @@ def kernels_for(F: Features) -> SimpleNamespace:
             acc_sq = acc_sq + y * y
         film.accum[pixel] = acc
         film.accum_sq[pixel] = acc_sq
-        film.rays[pixel] = film.rays[pixel] + rays
-        film.overflow[pixel] = film.overflow[pixel] + dropped
+        film.rays[pixel] = rays
+        film.overflow[pixel] = dropped
 
     @wp.kernel(module="unique", enable_backward=False)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
@@ -229,8 +235,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
         py = row0 + (k0 / cam.width) * stride
         if py >= cam.height:
             return
-        for k in range(k0, k0 + run):
-            px = k % cam.width
+        px0 = k0 % cam.width
+        for j in range(run):
+            px = px0 + j
             render_pixel(scene, cam, params, px, py, py * cam.width + px, s0, s1, film)
 
     return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)

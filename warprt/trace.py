@@ -289,7 +289,7 @@ def make_trace(F: Features) -> SimpleNamespace:
 
     solid_rec = posed_solid
 
-    @wp.func
+    @wp.func(inline=True)
     def solid_interval(k: int, rec: SolidRec, pose: Pose, o: wp.vec3, d: wp.vec3) -> wp.vec4:
         """The ray's interval inside solid ``rec`` of kind k posed at ``pose`` (see geometry)."""
         o_l = wp.quat_rotate_inv(pose.rot, o - pose.pos)
@@ -516,8 +516,16 @@ def make_trace(F: Features) -> SimpleNamespace:
             while wp.bvh_query_next(query, j, best):
                 k = scene.bvh_prims[j][0]
                 i = scene.bvh_prims[j][1]
-                t = bounded_hit(scene, o, d, t_min, best, time, k, i)
-                if t >= 0.0:
+                # ties as in the loops (kinds in KIND_* order, rows in table order): a shape the
+                # loops would test before the current hit may also take it at the same t. Its
+                # search bound is raised above ``best`` (intersections exclude t_max) and only
+                # t == best is accepted there
+                first = kind != KIND_NONE and (k < kind or (k == kind and i < index))
+                t_hi = best
+                if first:
+                    t_hi = best * 1.0000002 + 1.0e-38
+                t = bounded_hit(scene, o, d, t_min, t_hi, time, k, i)
+                if t >= 0.0 and (t < best or (first and t == best)):
                     best = t
                     kind = k
                     index = i

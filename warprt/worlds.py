@@ -240,16 +240,6 @@ def _pose_kernels():
 
 
 @build_once
-def _image_kernel():
-    @wp.kernel(module="warprt_worlds", enable_backward=False)
-    def batch_image(accum: wp.array(dtype=wp.vec3), inv_spp: float, out: wp.array(dtype=wp.vec3)):
-        i = wp.tid()
-        out[i] = accum[i] * inv_spp
-
-    return batch_image
-
-
-@build_once
 def batch_kernel_for(F: Features):
     """The batched render kernel for a feature set: the single-image kernel's per-pixel function
     on each world's tables (one Warp module per feature set, compiled on first use)."""
@@ -258,9 +248,10 @@ def batch_kernel_for(F: Features):
     @wp.kernel(module="unique", enable_backward=False)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
                      row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
-                     n_cams: int, height: int, width: int, run: int):
+                     n_cams: int, height: int, width: int, run: int, inv_spp: float, color: wp.array(dtype=wp.vec3)):
         # this launch's pixels: rows row0, row0 + stride, ... of the tall image (W·C·H rows), ``run``
-        # consecutive pixels of one row per thread (``run`` divides the width)
+        # consecutive pixels of one row per thread (``run`` divides the width); a batch renders all
+        # its samples in one pass, so each pixel's colour is written here too
         k0 = wp.tid() * run
         gy = row0 + (k0 / width) * stride
         image = gy / height
@@ -269,9 +260,12 @@ def batch_kernel_for(F: Features):
         sc = world_scene(scene, tables, image / n_cams)
         cam = cams[image]
         py = gy - image * height
-        for k in range(k0, k0 + run):
-            px = k % width
-            render_pixel(sc, cam, params, px, py, gy * width + px, s0, s1, film)
+        px0 = k0 % width
+        for j in range(run):
+            px = px0 + j
+            g = gy * width + px
+            render_pixel(sc, cam, params, px, py, g, s0, s1, film)
+            color[g] = film.accum[g] * inv_spp
 
     return batch_render
 
@@ -422,7 +416,8 @@ class BatchRenderer:
         self.bvh = None
         self.scene_data.bvh = wp.uint64(0)
         self.scene_data.bvh_root = -1
-        if len(prims) >= ANALYTIC_BVH_MIN:
+        self._use_bvh = len(prims) >= ANALYTIC_BVH_MIN
+        if self._use_bvh:
             self._prims = wp.array(np.tile(np.array(prims, np.int32), (W, 1)), dtype=wp.vec2i, device=dev)
             self._lowers = wp.zeros(W * len(prims), dtype=wp.vec3, device=dev)
             self._uppers = wp.zeros(W * len(prims), dtype=wp.vec3, device=dev)
@@ -498,7 +493,7 @@ class BatchRenderer:
         cam_end = self.camera_poses_end if self.motion_blur or self.scene.camera.moves else self.camera_poses
         wp.launch(pose_cameras, dim=(self.worlds, self.cameras), device=dev,
                   inputs=[self.built.camera, self.camera_poses, cam_end, self.fov, self._cams])
-        if self._per_world >= ANALYTIC_BVH_MIN:
+        if self._use_bvh:
             wp.launch(world_bounds, dim=self.worlds * self._per_world, device=dev,
                       inputs=[self.tables, self._prims, self._per_world, int(self.features.motion), self._lowers,
                               self._uppers])
@@ -533,11 +528,10 @@ class BatchRenderer:
         params = render_params(self.scene, spp, int(seed), self.features)
         run = pixels_per_thread(dev, self.width)
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
-                  self.height, self.width, run]
+                  self.height, self.width, run, 1.0 / float(spp), self._color]
         if not self._loaded:  # load the modules from this thread (workers must not race to build them)
             self._update_tables()
             wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
-            wp.launch(_image_kernel(), dim=1, device=dev, inputs=[self.film.data.accum, 1.0, self._color])
             wp.synchronize_device(dev)
             self.counters["compiles"] += 1
             self._loaded = True
@@ -545,16 +539,12 @@ class BatchRenderer:
         self._update_tables()
         if self.bvh is not None:
             self.bvh.refit()
-        for name in ("accum", "accum_sq", "rays", "overflow"):
-            getattr(self.film.data, name).zero_()
-        launches = []
+        launches = []  # (every pixel starts its film sums at sample 0: no zeroing)
         for first, stride, count in _slices(self.width, rows, n_slices):
             args = list(inputs)
             args[3], args[4] = first, stride
             launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
-        wp.launch(_image_kernel(), dim=self._color.shape[0], device=dev,
-                  inputs=[self.film.data.accum, 1.0 / float(spp), self._color])
         shape = (self.worlds, self.cameras, self.height, self.width)
         aov_maps = {}
         if aovs:
