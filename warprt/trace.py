@@ -108,6 +108,29 @@ def turned_extent(q: wp.quat, e: wp.vec3) -> wp.vec3:
 
 
 @wp.func
+def turns(q0: wp.quat, q1: wp.quat) -> bool:
+    """Whether the rotation at time 1 differs from the one at time 0."""
+    for k in range(4):
+        if q1[k] != q0[k]:
+            return True
+    return False
+
+
+@wp.func
+def swept_sphere_lo(p0: wp.vec3, p1: wp.vec3, rr: float) -> wp.vec3:
+    """The lower corner of the boxes of the spheres of radius rr about p0 and p1 (the upper is
+    ``swept_sphere_lo(-p0, -p1, rr)`` negated)."""
+    return wp.min(p0, p1) - wp.vec3(rr, rr, rr)
+
+
+@wp.func
+def box_pad(lo: wp.vec3, hi: wp.vec3) -> wp.vec3:
+    """Padding of a world box against float32 rounding: 1e-6 of its size and of its coordinates."""
+    pad = (wp.max(hi - lo) + wp.max(abs3(lo) + abs3(hi))) * 1.0e-6 + 1.0e-30
+    return wp.vec3(pad, pad, pad)
+
+
+@wp.func
 def instance_box(rec: InstRec) -> InstRec:
     """``rec`` with its world box (``lo``, ``hi``) from its object box (``olo``, ``ohi``) and pose:
     the transformed box, padded; when the pose at time 1 differs, the boxes of the sphere about
@@ -121,19 +144,15 @@ def instance_box(rec: InstRec) -> InstRec:
     lo = wc - ext
     hi = wc + ext
     moved = wp.max(abs3(rec.pos1 - rec.pos0)) > 0.0 or wp.max(abs3(rec.scl1 - rec.scl0)) > 0.0
-    for k in range(4):
-        if rec.rot1[k] != rec.rot0[k]:
-            moved = True
-    if moved:
+    if moved or turns(rec.rot0, rec.rot1):
         far = wp.max(abs3(rec.olo), abs3(rec.ohi))
         r0 = wp.length(wp.cw_mul(far, abs3(rec.scl0)))
         r1 = wp.length(wp.cw_mul(far, abs3(rec.scl1)))
         rr = wp.max(r0, r1)
-        lo = wp.min(rec.pos0, rec.pos1) - wp.vec3(rr, rr, rr)
-        hi = wp.max(rec.pos0, rec.pos1) + wp.vec3(rr, rr, rr)
-    pad = (wp.max(hi - lo) + wp.max(abs3(lo) + abs3(hi))) * 1.0e-6 + 1.0e-30
-    r.lo = lo - wp.vec3(pad, pad, pad)
-    r.hi = hi + wp.vec3(pad, pad, pad)
+        lo = swept_sphere_lo(rec.pos0, rec.pos1, rr)
+        hi = -swept_sphere_lo(-rec.pos0, -rec.pos1, rr)
+    r.lo = lo - box_pad(lo, hi)
+    r.hi = hi + box_pad(lo, hi)
     return r
 
 
@@ -145,6 +164,16 @@ def posed_solid(base: SceneData, kind: int, row: int) -> SolidRec:
     if kind == KIND_CAPSULE:
         return base.capsules[row]
     return base.cylinders[row]
+
+
+@wp.func(inline=True)
+def solid_count(base: SceneData, kind: int) -> int:
+    """Rows of solid table ``kind``."""
+    if kind == KIND_BOX:
+        return base.n_boxes
+    if kind == KIND_CAPSULE:
+        return base.n_capsules
+    return base.n_cylinders
 
 
 @wp.func
@@ -167,17 +196,11 @@ def solid_box(rec: SolidRec, kind: int) -> SolidRec:
     ext = turned_extent(rec.rot0, e)
     lo = rec.pos0 - ext
     hi = rec.pos0 + ext
-    moved = wp.max(abs3(rec.pos1 - rec.pos0)) > 0.0
-    for k in range(4):
-        if rec.rot1[k] != rec.rot0[k]:
-            moved = True
-    if moved:
-        rr = wp.length(e)
-        lo = wp.min(rec.pos0, rec.pos1) - wp.vec3(rr, rr, rr)
-        hi = wp.max(rec.pos0, rec.pos1) + wp.vec3(rr, rr, rr)
-    pad = (wp.max(hi - lo) + wp.max(abs3(lo) + abs3(hi))) * 1.0e-6 + 1.0e-30
-    r.lo = lo - wp.vec3(pad, pad, pad)
-    r.hi = hi + wp.vec3(pad, pad, pad)
+    if wp.max(abs3(rec.pos1 - rec.pos0)) > 0.0 or turns(rec.rot0, rec.rot1):
+        lo = swept_sphere_lo(rec.pos0, rec.pos1, wp.length(e))
+        hi = -swept_sphere_lo(-rec.pos0, -rec.pos1, wp.length(e))
+    r.lo = lo - box_pad(lo, hi)
+    r.hi = hi + box_pad(lo, hi)
     return r
 
 
@@ -544,24 +567,13 @@ def make_trace(F: Features) -> SimpleNamespace:
                     index = i
             if wp.static(F.solids):
                 inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
-                for i in range(scene.n_boxes):
-                    t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, KIND_BOX, i)
-                    if t >= 0.0:
-                        best = t
-                        kind = KIND_BOX
-                        index = i
-                for i in range(scene.n_capsules):
-                    t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, KIND_CAPSULE, i)
-                    if t >= 0.0:
-                        best = t
-                        kind = KIND_CAPSULE
-                        index = i
-                for i in range(scene.n_cylinders):
-                    t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, KIND_CYLINDER, i)
-                    if t >= 0.0:
-                        best = t
-                        kind = KIND_CYLINDER
-                        index = i
+                for k in range(KIND_BOX, KIND_CYLINDER + 1):
+                    for i in range(solid_count(scene, k)):
+                        t = solid_hit_boxed(scene, o, d, inv_d, t_min, best, time, k, i)
+                        if t >= 0.0:
+                            best = t
+                            kind = k
+                            index = i
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
@@ -708,18 +720,11 @@ def make_trace(F: Features) -> SimpleNamespace:
                         return wp.vec3(0.0, 0.0, 0.0)
             if wp.static(F.solids):
                 inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
-                for i in range(scene.n_boxes):
-                    T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, KIND_BOX, i))
-                    if wp.max(T) <= 0.0:
-                        return wp.vec3(0.0, 0.0, 0.0)
-                for i in range(scene.n_capsules):
-                    T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, KIND_CAPSULE, i))
-                    if wp.max(T) <= 0.0:
-                        return wp.vec3(0.0, 0.0, 0.0)
-                for i in range(scene.n_cylinders):
-                    T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, KIND_CYLINDER, i))
-                    if wp.max(T) <= 0.0:
-                        return wp.vec3(0.0, 0.0, 0.0)
+                for k in range(KIND_BOX, KIND_CYLINDER + 1):
+                    for i in range(solid_count(scene, k)):
+                        T = wp.cw_mul(T, solid_crossings(scene, o, d, inv_d, t_max, time, k, i))
+                        if wp.max(T) <= 0.0:
+                            return wp.vec3(0.0, 0.0, 0.0)
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 T = wp.cw_mul(T, mesh_transmittance(scene, o, d, t_max, time))

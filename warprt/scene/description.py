@@ -380,8 +380,20 @@ class Box(_Posed):
         return (*self._poses(self.center, np.array([0.0, 0.0, 0.0, 1.0])), half)
 
 
+@dataclass(frozen=True)
 class _Round(_Posed):
-    def _check_round(self) -> None:
+    """The fields capsules and cylinders share: an axis segment from ``start`` to ``end`` and a
+    radius about it."""
+
+    start: Vec3 = (0.0, -0.5, 0.0)
+    end: Vec3 = (0.0, 0.5, 0.0)
+    radius: float = 0.25
+    material: str = DEFAULT_MATERIAL
+    transform: Transform | None = None
+    transform_end: Transform | None = None
+    keyframes: tuple = ()
+
+    def __post_init__(self):
         set_field(self, "start", as_vec3(self.start, "start"))
         set_field(self, "end", as_vec3(self.end, "end"))
         set_field(self, "radius", as_float(self.radius, "radius", minimum=0.0, float32="range"))
@@ -401,17 +413,6 @@ class Capsule(_Round):
     """The points within ``radius`` of the segment from ``start`` to ``end``: a cylinder with a
     hemisphere at each end (start = end gives a sphere). A uniform scale only."""
 
-    start: Vec3 = (0.0, -0.5, 0.0)
-    end: Vec3 = (0.0, 0.5, 0.0)
-    radius: float = 0.25
-    material: str = DEFAULT_MATERIAL
-    transform: Transform | None = None
-    transform_end: Transform | None = None
-    keyframes: tuple = ()
-
-    def __post_init__(self):
-        self._check_round()
-
 
 @checked_keywords
 @dataclass(frozen=True)
@@ -419,16 +420,8 @@ class Cylinder(_Round):
     """A solid circular cylinder of ``radius`` about the segment from ``start`` to ``end``, closed
     by flat caps. A uniform scale only."""
 
-    start: Vec3 = (0.0, -0.5, 0.0)
-    end: Vec3 = (0.0, 0.5, 0.0)
-    radius: float = 0.25
-    material: str = DEFAULT_MATERIAL
-    transform: Transform | None = None
-    transform_end: Transform | None = None
-    keyframes: tuple = ()
-
     def __post_init__(self):
-        self._check_round()
+        super().__post_init__()
         if self.start == self.end:
             raise SceneError("start and end are the same point: the cylinder has no height", "end")
 
