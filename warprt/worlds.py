@@ -99,6 +99,16 @@ def world_scene(scene: SceneData, tables: WorldTables, w: int) -> SceneData:
     return sc
 
 
+@wp.func
+def end_rotation(q1: wp.quat, rot1: wp.quat, rot0: wp.quat) -> wp.quat:
+    """A shape's own rotation at shutter close turned by the pose q1, in rot0's hemisphere (slerp
+    from rot0 takes the shorter arc)."""
+    r = wp.normalize(q1 * rot1)
+    if wp.dot(r, rot0) < 0.0:
+        r = -r
+    return r
+
+
 @build_once
 def _pose_kernels():
     """The kernels that turn the pose arrays into world tables, cameras and BVH bounds (one
@@ -141,10 +151,7 @@ def _pose_kernels():
             ins.pos0 = wp.transform_point(T0, ins.pos0)
             ins.rot0 = wp.normalize(q0 * ins.rot0)
             ins.pos1 = wp.transform_point(T1, ins.pos1)
-            rot1 = wp.normalize(q1 * ins.rot1)
-            if wp.dot(rot1, ins.rot0) < 0.0:  # slerp along the shorter arc
-                rot1 = -rot1
-            ins.rot1 = rot1
+            ins.rot1 = end_rotation(q1, ins.rot1, ins.rot0)
             tables.insts[w, row] = instance_box(ins)
         elif kind >= KIND_BOX:
             rec = posed_solid(base, kind, row)
@@ -152,10 +159,7 @@ def _pose_kernels():
             rec.pos0 = wp.transform_point(T0, rec.pos0)
             rec.rot0 = wp.normalize(q0 * rec.rot0)
             rec.pos1 = wp.transform_point(T1, rec.pos1)
-            rot1 = wp.normalize(q1 * rec.rot1)
-            if wp.dot(rot1, rec.rot0) < 0.0:
-                rot1 = -rot1
-            rec.rot1 = rot1
+            rec.rot1 = end_rotation(q1, rec.rot1, rec.rot0)
             rec = solid_box(rec, kind)
             if kind == KIND_BOX:
                 tables.boxes[w, row] = rec

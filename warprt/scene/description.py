@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import SceneError
-from .transform import Transform, as_transform
+from .transform import Transform, as_transform, quaternion_product, quaternion_y_to, same_hemisphere
 from .values import (
     RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, checked_keywords, norm,
     set_field,
@@ -294,27 +294,6 @@ class Disk:
         _check_material(self)
 
 
-def _quat_mul(a, b) -> np.ndarray:
-    """The rotation b, then a, as one quaternion (x, y, z, w)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
-
-
-def _quat_y_to(v) -> np.ndarray:
-    """The shortest rotation taking the y axis to the direction of ``v`` (identity for v = 0)."""
-    v = np.asarray(v, np.float64)
-    n = np.linalg.norm(v)
-    if n == 0.0:
-        return np.array([0.0, 0.0, 0.0, 1.0])
-    u = v / n
-    if u[1] < -1.0 + 1e-12:  # straight down: half a turn about x
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    q = np.array([u[2], 0.0, -u[0], 1.0 + u[1]])  # (y × u, 1 + y·u), normalised
-    return q / np.linalg.norm(q)
-
-
 class _Posed:
     """What boxes, capsules and cylinders share: a ``transform`` (scale, rotate, translate) at
     time 0, an optional ``transform_end`` at time 1 (motion blur), ``keyframes`` like a mesh's."""
@@ -345,10 +324,8 @@ class _Posed:
         placed by the transforms at times 0 and 1 (rot1 in rot0's hemisphere)."""
         t0 = self.transform or Transform()
         t1 = self.transform_end or t0
-        r0 = _quat_mul(t0.quaternion(), q_local)
-        r1 = _quat_mul(t1.quaternion(), q_local)
-        if float(np.dot(r0, r1)) < 0.0:
-            r1 = -r1
+        r0 = quaternion_product(t0.quaternion(), q_local)
+        r1 = same_hemisphere(quaternion_product(t1.quaternion(), q_local), r0)
         return t0.apply_point(center), tuple(float(x) for x in r0), t1.apply_point(center), tuple(float(x) for x in r1)
 
 
@@ -404,7 +381,7 @@ class _Round(_Posed):
         a, b = np.asarray(self.start, np.float64), np.asarray(self.end, np.float64)
         s = (self.transform or Transform()).uniform_scale or 1.0
         size = (self.radius * s, 0.5 * float(np.linalg.norm(b - a)) * s, 0.0)
-        return (*self._poses(tuple(0.5 * (a + b)), _quat_y_to(b - a)), size)
+        return (*self._poses(tuple(0.5 * (a + b)), quaternion_y_to(b - a)), size)
 
 
 @checked_keywords

@@ -60,6 +60,27 @@ def matrix_quaternion(m: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
+def quaternion_product(a, b) -> np.ndarray:
+    """The rotation b, then a, as one quaternion (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return np.array([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz])
+
+
+def quaternion_y_to(v) -> np.ndarray:
+    """The shortest rotation taking the y axis to the direction of ``v`` (identity for v = 0)."""
+    v = np.asarray(v, np.float64)
+    n = np.linalg.norm(v)
+    if n == 0.0:
+        return np.array([0.0, 0.0, 0.0, 1.0])
+    u = v / n
+    if u[1] < -1.0 + 1e-12:  # straight down: half a turn about x
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    q = np.array([u[2], 0.0, -u[0], 1.0 + u[1]])  # (y × u, 1 + y·u), normalised
+    return q / np.linalg.norm(q)
+
+
 def slerp(q0: Sequence[float], q1: Sequence[float], f: float) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions along the shorter arc: at fraction f the
     rotation is q0 followed by f times the angle of q0⁻¹q1 about its fixed axis."""
