@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 import warp as wp
 
+from .accel import BvhNode, build_tree, forest_nodes
 from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
@@ -27,16 +28,18 @@ from .records import (
 )
 from .sampling import SAMPLER_IDS
 from .scene.description import (
-    EXTENT_WARNING, LIGHT_SAMPLING, DirectionalLight, Material, Mesh, PointLight, Scene, is_area_light, scene_extent,
+    AUTO_SAMPLES, EXTENT_WARNING, LIGHT_SAMPLING, DirectionalLight, Material, Mesh, PointLight, Scene, is_area_light,
+    scene_extent,
 )
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
 from .trace import instance_box_kernel
 
-# from this many bounded analytic shapes on (all but planes), rays find them through one BVH. Warp's
-# BVH query beats the loop (a box test per shape) from two on: 512² renders, 1 worker, CPU s, min
-# of 11 interleaved: a plane + 2 spheres 126 -> 115 ns a pixel, + 4 boxes 271 -> 205, + 4 boxes,
-# 2 spheres and a capsule 332 -> 231; 64 worlds of the last in a batch 218 -> 159
+# from this many bounded analytic shapes on (all but planes), rays find them through one BVH (accel).
+# A BVH beats the loop (a box test per shape) from two on (measured with Warp's wp.Bvh): 512²
+# renders, 1 worker, CPU s, min of 11 interleaved: a plane + 2 spheres 126 -> 115 ns a pixel,
+# + 4 boxes 271 -> 205, + 4 boxes, 2 spheres and a capsule 332 -> 231; 64 worlds of the last in a
+# batch 218 -> 159
 ANALYTIC_BVH_MIN = 2
 
 
@@ -117,10 +120,12 @@ class DeviceScene:
             surface = light.shape()
             kind = BY_CLASS[type(surface)]
             mats.append((Material(kd=0.0, ka=0.0), tuple(light.radiance)))
-            alights.append(dict(kind=kind.tag, shape=len(rows[kind.table]), le=light.radiance, samples=light.samples))
+            auto = light.samples == AUTO_SAMPLES  # 1 until the renderer has chosen (warprt.splitting)
+            alights.append(dict(kind=kind.tag, shape=len(rows[kind.table]), le=light.radiance,
+                                samples=1 if auto else light.samples, auto=auto))
             rows[kind.table].append(kind.row(surface, len(mats) - 1))
         self.normal_offsets = dict(zip(asset_ids, nrm_offsets))
-        self.area_lights = alights  # (kind, row in its shape table, radiance, samples) of each area light
+        self.area_lights = alights  # (kind, row in its shape table, radiance, samples, auto) of each area light
         # point and directional lights share one table: a directional light's ``pos`` is the unit
         # vector towards it and ``inv_sq`` is FALLOFF_DIRECTIONAL
         plights = [light for light in scene.lights if isinstance(light, (PointLight, DirectionalLight))]
@@ -149,6 +154,19 @@ class DeviceScene:
         self.data = d
         self.camera = camera_data(scene)
 
+    @property
+    def auto_lights(self) -> int:
+        """How many area lights have ``samples = "auto"``."""
+        return sum(a["auto"] for a in self.area_lights)
+
+    def set_auto_light_samples(self, n: int) -> None:
+        """Give every area light with ``samples = "auto"`` n shadow rays per camera sample."""
+        rows = self.data.alights.numpy()
+        for j, a in enumerate(self.area_lights):
+            if a["auto"]:
+                rows["samples"][j] = n
+        self.data.alights.assign(rows)
+
     def set_mesh_points(self, shape_index: int, points) -> None:
         """Move the vertices of the mesh asset behind ``scene.shapes[shape_index]`` (every
         instance of that asset follows) and refit its BVH; smooth normals are recomputed."""
@@ -174,14 +192,14 @@ class DeviceScene:
             self.data.normals.assign(all_n)
 
     def _analytic_bvh(self, d: SceneData, rows: dict[str, list[dict]], materials: list[Material]) -> None:
-        """From ANALYTIC_BVH_MIN bounded analytic shapes on, one wp.Bvh over their bounds (spheres
-        swept over their motion), each primitive tagged (kind, row)."""
+        """From ANALYTIC_BVH_MIN bounded analytic shapes on, one BVH (``accel``) over their bounds
+        (spheres swept over their motion), each primitive tagged (kind, row)."""
         dev = self.device
         prims = [(kind, j, kind.bounds(row)) for kind in KINDS if kind.bounds is not None
                  for j, row in enumerate(rows[kind.table])]
         self.analytic_bvh = None
-        d.bvh = wp.uint64(0)
         d.bvh_root = -1
+        d.bvh_nodes = wp.zeros(1, dtype=BvhNode, device=dev)
         d.bvh_prims = wp.zeros(1, dtype=wp.vec2i, device=dev)
         if len(prims) < ANALYTIC_BVH_MIN:
             return
@@ -195,11 +213,12 @@ class DeviceScene:
         hi = np.array([b[1] for _, _, b in prims], dtype=np.float64)
         # float32 rounding of the bounds must not cut off a hit: pad by a relative margin
         pad = (hi - lo).max(axis=1, keepdims=True) * 1e-6 + np.maximum(np.abs(lo), np.abs(hi)).max(axis=1, keepdims=True) * 1e-6
-        self.analytic_bvh = wp.Bvh(wp.array((lo - pad).astype(np.float32), dtype=wp.vec3, device=dev),
-                                   wp.array((hi + pad).astype(np.float32), dtype=wp.vec3, device=dev))
-        d.bvh = wp.uint64(self.analytic_bvh.id)
-        d.bvh_prims = wp.array(np.array([(kind.tag, j) for kind, j, _ in prims], dtype=np.int32), dtype=wp.vec2i,
-                               device=dev)
+        tree = build_tree(lo - pad, hi + pad)
+        self.analytic_bvh = tree
+        d.bvh_root = 0
+        d.bvh_nodes = forest_nodes([tree], dev)
+        tags = np.array([(kind.tag, j) for kind, j, _ in prims], dtype=np.int32)
+        d.bvh_prims = wp.array(tags[tree[0]], dtype=wp.vec2i, device=dev)
 
 
 def point_light_row(light) -> dict:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import warp as wp
 
+from .accel import BvhNode
 from .scene.description import SOLID_TYPES, Material, Mesh, Scene, Sphere, is_area_light
 
 # shape kinds, as reported by ray queries and id AOVs, and as area lights name their surface
@@ -191,9 +192,9 @@ class SceneData:
 
     n_spheres: int
     spheres: wp.array(dtype=SphereRec)
-    bvh: wp.uint64  # BVH over the bounded analytic shapes (all but planes and meshes), 0 when they are few
-    bvh_root: int  # the node rays start from: -1 for the whole BVH, a world's group root in a batch
-    bvh_prims: wp.array(dtype=wp.vec2i)  # (kind, row) of each BVH primitive
+    bvh_nodes: wp.array(dtype=BvhNode)  # BVH over the bounded analytic shapes (all but planes and meshes)
+    bvh_root: int  # the node rays start from (a world's tree in a batch); -1: no BVH (few shapes)
+    bvh_prims: wp.array(dtype=wp.vec2i)  # (kind, row) of each BVH primitive, in leaf order
     n_planes: int
     planes: wp.array(dtype=PlaneRec)
     n_rects: int

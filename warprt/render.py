@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from . import _warp
+from . import _warp, splitting
 from .aov import check_aov_names, compute_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
@@ -229,6 +229,7 @@ class Renderer:
         self.kernel = kernels_for(self.features).render
         self._loaded = None  # the kernel loaded on the device by compile()
         self._pool = WorkerPool("warprt-render")
+        self._light_samples = None  # what samples = "auto" became (light_samples())
 
     def update(self, scene: Scene) -> None:
         """Switch to a changed scene (moved objects, new materials, lights or camera...) without
@@ -238,6 +239,7 @@ class Renderer:
             raise RenderError(f"update() needs a warprt.Scene, got {type(scene).__name__}")
         self.built = DeviceScene(scene, self.device, assets=self.built.assets)
         self.scene = scene
+        self._light_samples = None
         needed = self.built.features
         if needed.union(self.features) != self.features:
             self.features = self.features.union(needed)
@@ -248,6 +250,7 @@ class Renderer:
         self.scene = self.scene.replace(camera=camera)
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
+        self._light_samples = None  # what the camera sees changes the split
         if camera.moves and not self.features.motion or camera.aperture > 0 and not self.features.lens:
             self.update(self.scene)
 
@@ -255,6 +258,39 @@ class Renderer:
         """New vertex positions (numpy (N, 3) or a ``wp.array`` of vec3 on this device, e.g. from
         a Warp simulation) for a mesh; its BVH is refitted, not rebuilt."""
         self.built.set_mesh_points(shape_index, points)
+
+    def light_samples(self, workers: int | None = None) -> int | None:
+        """The shadow rays per camera sample that area lights with ``samples = "auto"`` take
+        (None when there are none): chosen from the variance split a small pilot measures
+        (``warprt.splitting``), once per renderer and scene, and the same for any seed or spp."""
+        if not self.built.auto_lights:
+            return None
+        if self._light_samples is None:
+            if self._loaded is not self.kernel:
+                self.compile()
+                self._loaded = self.kernel
+            workers = default_workers() if workers is None else workers
+            cam = self.scene.camera
+            first, step = splitting.pilot_rows(cam.height)
+            rows = list(range(first, cam.height, step))
+            count = max(1, min(len(rows), SLICES_PER_WORKER * workers)) if self.device.is_cpu else 1
+            run = pixels_per_thread(self.device, cam.width)
+            params = render_params(self.scene, splitting.PILOT_SPP, splitting.PILOT_SEED, self.built.features)
+            variances = []
+            for n in (1, splitting.PROBE):
+                self.built.set_auto_light_samples(n)
+                film = Film(cam.width, cam.height, self.device)
+                launches = [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run, device=self.device,
+                                      record_cmd=True, inputs=[self.built.data, self.built.camera, params, rows[j],
+                                                               step * count, 0, 0, film.data, run])
+                            for j in range(count)]
+                run_pass(self._pool.get(workers), launches, workers, 0, splitting.PILOT_SPP)
+                wp.synchronize_device(self.device)
+                variances.append(film.luminance_stats(splitting.PILOT_SPP)[1])
+            v_cam, v_light = splitting.variance_split(*variances)
+            self._light_samples = splitting.best_samples(v_cam, v_light, self.built.auto_lights)
+        self.built.set_auto_light_samples(self._light_samples)
+        return self._light_samples
 
     def compile(self) -> float:
         """Load the kernel on this device, compiling it when Warp's cache lacks it; returns seconds.
@@ -326,6 +362,7 @@ class Renderer:
         if self._loaded is not self.kernel:
             self.compile()
             self._loaded = self.kernel
+        self.light_samples(int(workers))  # samples = "auto": chosen once, then set for every render
         n_slices = (SLICES_PER_WORKER * workers if slices is None else int(slices)) if dev.is_cpu else 1
         run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop)
 

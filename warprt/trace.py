@@ -20,6 +20,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from .accel import StackDist, StackRefs, safe_inverse, slab
 from ._warp import build_once
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
@@ -519,7 +520,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         bv = float(0.0)
         # kinds in the order spheres, planes, rectangles, disks; a hit replaces another only when
         # strictly nearer. Many bounded shapes: planes first, then one BVH over the rest
-        use_bvh = scene.bvh != wp.uint64(0)
+        use_bvh = scene.bvh_root >= 0
         if not use_bvh:
             for i in range(scene.n_spheres):
                 t = intersect_sphere(o, d, sphere_center(scene, i, time), scene.spheres[i].r, t_min, best)
@@ -534,9 +535,50 @@ def make_trace(F: Features) -> SimpleNamespace:
                 kind = KIND_PLANE
                 index = i
         if use_bvh:
-            query = wp.bvh_query_ray(scene.bvh, o, d, scene.bvh_root)
-            j = int(0)
-            while wp.bvh_query_next(query, j, best):
+            # nearest child first; a child stays on the stack with its entry distance and is
+            # dropped once a hit is nearer. Boxes entered at exactly ``best`` are still opened:
+            # a shape the loops test first may take a hit at the same t (the tie rule below)
+            inv_d = safe_inverse(d)
+            refs = StackRefs()
+            entry = StackDist()
+            refs[0] = scene.bvh_root
+            sp = int(1)
+            while sp > 0:
+                sp -= 1
+                if entry[sp] > best:
+                    continue
+                ref = refs[sp]
+                if ref >= 0:
+                    nd = scene.bvh_nodes[ref]
+                    s0 = slab(o, inv_d, nd.lo0, nd.hi0)
+                    s1 = slab(o, inv_d, nd.lo1, nd.hi1)
+                    h0 = s0[0] <= s0[1] and s0[1] >= 0.0 and s0[0] <= best
+                    h1 = s1[0] <= s1[1] and s1[1] >= 0.0 and s1[0] <= best
+                    if h0 and h1:
+                        near = nd.c0
+                        far = nd.c1
+                        t_near = s0[0]
+                        t_far = s1[0]
+                        if s1[0] < s0[0]:
+                            near = nd.c1
+                            far = nd.c0
+                            t_near = s1[0]
+                            t_far = s0[0]
+                        refs[sp] = far
+                        entry[sp] = t_far
+                        refs[sp + 1] = near
+                        entry[sp + 1] = t_near
+                        sp += 2
+                    elif h0:
+                        refs[sp] = nd.c0
+                        entry[sp] = s0[0]
+                        sp += 1
+                    elif h1:
+                        refs[sp] = nd.c1
+                        entry[sp] = s1[0]
+                        sp += 1
+                    continue
+                j = -ref - 1
                 k = scene.bvh_prims[j][0]
                 i = scene.bvh_prims[j][1]
                 # ties as in the loops (kinds in KIND_* order, rows in table order): a shape the
@@ -680,7 +722,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         """Fraction of light arriving along the shadow ray (o, d) over (0, t_max): 0 when an
         opaque surface blocks it; transparent surfaces multiply it by their kt per crossing."""
         T = wp.vec3(1.0, 1.0, 1.0)
-        use_bvh = scene.bvh != wp.uint64(0)
+        use_bvh = scene.bvh_root >= 0
         if not use_bvh:
             for i in range(scene.n_spheres):
                 T = wp.cw_mul(T, sphere_crossings(scene, o, d, t_max, time, i))
@@ -692,9 +734,26 @@ def make_trace(F: Features) -> SimpleNamespace:
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         if use_bvh:
-            query = wp.bvh_query_ray(scene.bvh, o, d, scene.bvh_root)
-            j = int(0)
-            while wp.bvh_query_next(query, j, t_max):
+            # every box the segment (0, t_max) passes through, in any order
+            inv_d = safe_inverse(d)
+            refs = StackRefs()
+            refs[0] = scene.bvh_root
+            sp = int(1)
+            while sp > 0:
+                sp -= 1
+                ref = refs[sp]
+                if ref >= 0:
+                    nd = scene.bvh_nodes[ref]
+                    s0 = slab(o, inv_d, nd.lo0, nd.hi0)
+                    s1 = slab(o, inv_d, nd.lo1, nd.hi1)
+                    if s0[0] <= s0[1] and s0[1] >= 0.0 and s0[0] < t_max:
+                        refs[sp] = nd.c0
+                        sp += 1
+                    if s1[0] <= s1[1] and s1[1] >= 0.0 and s1[0] < t_max:
+                        refs[sp] = nd.c1
+                        sp += 1
+                    continue
+                j = -ref - 1
                 k = scene.bvh_prims[j][0]
                 i = scene.bvh_prims[j][1]
                 if k == KIND_SPHERE:

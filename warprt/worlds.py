@@ -44,6 +44,7 @@ import warp as wp
 
 from . import _warp
 from ._warp import build_once
+from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .errors import RenderError
 from .film import Film, FilmData
@@ -79,6 +80,7 @@ class WorldTables:
     capsules: wp.array2d(dtype=SolidRec)
     cylinders: wp.array2d(dtype=SolidRec)
     plights: wp.array2d(dtype=PointLightRec)
+    bvh_nodes_per_world: int  # world w's BVH is the nodes from w · this on (accel: a forest of equal trees)
 
 
 @wp.func
@@ -94,8 +96,8 @@ def world_scene(scene: SceneData, tables: WorldTables, w: int) -> SceneData:
     sc.capsules = tables.capsules[w]
     sc.cylinders = tables.cylinders[w]
     sc.plights = tables.plights[w]
-    if scene.bvh != wp.uint64(0):
-        sc.bvh_root = wp.bvh_get_group_root(scene.bvh, w)
+    if scene.bvh_root >= 0:
+        sc.bvh_root = w * tables.bvh_nodes_per_world
     return sc
 
 
@@ -417,20 +419,28 @@ class BatchRenderer:
             + [(KIND_DISK, i) for i in range(d.n_disks)] + [(KIND_BOX, i) for i in range(d.n_boxes)] \
             + [(KIND_CAPSULE, i) for i in range(d.n_capsules)] + [(KIND_CYLINDER, i) for i in range(d.n_cylinders)]
         self._per_world = len(prims)
-        self.bvh = None
-        self.scene_data.bvh = wp.uint64(0)
+        self.bvh = None  # the worlds' BVHs (accel: one tree per world, refitted from the posed tables)
         self.scene_data.bvh_root = -1
         self._use_bvh = len(prims) >= ANALYTIC_BVH_MIN
         if self._use_bvh:
+            P = len(prims)
             self._prims = wp.array(np.tile(np.array(prims, np.int32), (W, 1)), dtype=wp.vec2i, device=dev)
-            self._lowers = wp.zeros(W * len(prims), dtype=wp.vec3, device=dev)
-            self._uppers = wp.zeros(W * len(prims), dtype=wp.vec3, device=dev)
-            self._groups = wp.array(np.repeat(np.arange(W, dtype=np.int32), len(prims)), dtype=wp.int32, device=dev)
+            self._lowers = wp.zeros(W * P, dtype=wp.vec3, device=dev)
+            self._uppers = wp.zeros(W * P, dtype=wp.vec3, device=dev)
             self.counters["host_transfers"] += 2
             self._update_tables()
-            self.bvh = wp.Bvh(self._lowers, self._uppers, groups=self._groups)
+            lo, hi = self._lowers.numpy().reshape(W, P, 3), self._uppers.numpy().reshape(W, P, 3)
+            trees = [build_tree(lo[w], hi[w]) for w in range(W)]
+            # each world's primitives in its leaf order: the bounds kernel then writes them where
+            # the leaves look
+            leaf_order = np.concatenate([w * P + t[0] for w, t in enumerate(trees)])
+            self._prims = wp.array(self._prims.numpy()[leaf_order], dtype=wp.vec2i, device=dev)
+            self.bvh = forest_nodes(trees, dev)
             self.counters["rebuilds"] += 1
-            self.scene_data.bvh = wp.uint64(self.bvh.id)
+            self.counters["host_transfers"] += 2
+            self.tables.bvh_nodes_per_world = P - 1
+            self.scene_data.bvh_root = 0
+            self.scene_data.bvh_nodes = self.bvh
             self.scene_data.bvh_prims = self._prims
         self.film = Film(cam.width, W * C * cam.height, dev)
         self._color = wp.zeros(pixels, dtype=wp.vec3, device=dev)
@@ -542,7 +552,8 @@ class BatchRenderer:
         start = _time.perf_counter()
         self._update_tables()
         if self.bvh is not None:
-            self.bvh.refit()
+            wp.launch(refit_kernel, dim=self.worlds, device=dev,
+                      inputs=[self.bvh, self._lowers, self._uppers, self._per_world - 1])
         launches = []  # (every pixel starts its film sums at sample 0: no zeroing)
         for first, stride, count in _slices(self.width, rows, n_slices):
             args = list(inputs)

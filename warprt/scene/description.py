@@ -556,9 +556,19 @@ class DirectionalLight:
         set_field(self, "intensity", as_rgb(self.intensity, "intensity"))
 
 
+# an area light's ``samples`` may say "auto": the renderer picks the shadow rays per camera sample
+# from the variance split it measures (warprt.splitting)
+AUTO_SAMPLES = "auto"
+
+
 def _area_light_common(obj: Any) -> None:
     set_field(obj, "radiance", as_rgb(obj.radiance, "radiance"))
-    set_field(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
+    if isinstance(obj.samples, str):
+        if obj.samples != AUTO_SAMPLES:
+            raise SceneError(f'expected a whole number of shadow rays or "{AUTO_SAMPLES}", got {obj.samples!r}',
+                             "samples")
+    else:
+        set_field(obj, "samples", as_int(obj.samples, "samples", minimum=1, maximum=1024))
 
 
 @checked_keywords
@@ -570,7 +580,7 @@ class RectLight:
     edge1: Vec3 = (1.0, 0.0, 0.0)
     edge2: Vec3 = (0.0, 0.0, 1.0)
     radiance: RGB = (1.0, 1.0, 1.0)  # Le, emitted radiance
-    samples: int = 1  # shadow rays per shading point and camera sample
+    samples: int | str = 1  # shadow rays per shading point and camera sample, or "auto" (warprt.splitting)
 
     def __post_init__(self):
         r = Rectangle(self.corner, self.edge1, self.edge2)
@@ -596,7 +606,7 @@ class SphereLight:
     center: Vec3 = (0.0, 4.0, 0.0)
     radius: float = 0.5
     radiance: RGB = (1.0, 1.0, 1.0)
-    samples: int = 1
+    samples: int | str = 1
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
@@ -616,7 +626,7 @@ class DiskLight:
     normal: Vec3 = (0.0, -1.0, 0.0)
     radius: float = 0.5
     radiance: RGB = (1.0, 1.0, 1.0)
-    samples: int = 1
+    samples: int | str = 1
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
