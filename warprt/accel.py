@@ -226,6 +226,16 @@ def forest_nodes(trees, device) -> "wp.array":
     return wp.array(np.concatenate(rows), dtype=BvhNode, device=device)
 
 
+@wp.func
+def child_box(nodes: wp.array(dtype=BvhNode), lowers: wp.array(dtype=wp.vec3), uppers: wp.array(dtype=wp.vec3),
+              c: int):
+    """The box of child ref c: its primitive's, or the union of its node's two child boxes."""
+    if c < 0:
+        return lowers[-c - 1], uppers[-c - 1]
+    ch = nodes[c]
+    return wp.min(ch.lo0, ch.lo1), wp.max(ch.hi0, ch.hi1)
+
+
 @wp.kernel(module="warprt_accel", enable_backward=False)
 def refit_kernel(nodes: wp.array(dtype=BvhNode), lowers: wp.array(dtype=wp.vec3), uppers: wp.array(dtype=wp.vec3),
                  n_nodes: int):
@@ -235,20 +245,10 @@ def refit_kernel(nodes: wp.array(dtype=BvhNode), lowers: wp.array(dtype=wp.vec3)
     for k in range(n_nodes):
         i = w * n_nodes + n_nodes - 1 - k
         nd = nodes[i]
-        if nd.c0 < 0:
-            j = -nd.c0 - 1
-            nd.lo0 = lowers[j]
-            nd.hi0 = uppers[j]
-        else:
-            ch = nodes[nd.c0]
-            nd.lo0 = wp.min(ch.lo0, ch.lo1)
-            nd.hi0 = wp.max(ch.hi0, ch.hi1)
-        if nd.c1 < 0:
-            j = -nd.c1 - 1
-            nd.lo1 = lowers[j]
-            nd.hi1 = uppers[j]
-        else:
-            ch = nodes[nd.c1]
-            nd.lo1 = wp.min(ch.lo0, ch.lo1)
-            nd.hi1 = wp.max(ch.hi0, ch.hi1)
+        lo0, hi0 = child_box(nodes, lowers, uppers, nd.c0)
+        lo1, hi1 = child_box(nodes, lowers, uppers, nd.c1)
+        nd.lo0 = lo0
+        nd.hi0 = hi0
+        nd.lo1 = lo1
+        nd.hi1 = hi1
         nodes[i] = nd
