@@ -19,7 +19,7 @@ from .geometry import max_abs, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, Features, RenderParams, SceneData
 from .sampling import hash2, sample_2d_keyed
 from .shading import blinn_phong, mul_sat
-from .shapes import sample_emitter
+from .shapes import prepare_emitter, sample_emitter
 from .trace import make_trace
 
 LIGHT_DIM_BASE = 16  # dimension keys of area light j: hash2(path key, LIGHT_DIM_BASE + j)
@@ -44,9 +44,14 @@ def make_lights(F: Features) -> SimpleNamespace:
             ns = scene.alights[j].samples
             acc = wp.vec3(0.0, 0.0, 0.0)
             dim = hash2(key, wp.uint32(LIGHT_DIM_BASE + j))
+            kind = scene.alights[j].kind
+            row = scene.alights[j].shape
+            prep = prepare_emitter(scene, kind, row, p, n, params.light_sampling)  # once for the ns draws
+            if prep.ok == 0:
+                continue  # no light from it reaches p
             for k in range(ns):
                 u = sample_2d_keyed(params.sampler, pkey, sample * ns + k, params.spp * ns, dim)
-                e = sample_emitter(scene, scene.alights[j].kind, scene.alights[j].shape, p, n, params.light_sampling, u)
+                e = sample_emitter(scene, kind, row, prep, p, u)
                 if e.ok == 0:
                     continue
                 if wp.dot(ng, e.l) <= 0.0:

@@ -288,37 +288,73 @@ def grid_lerp(w: wp.mat33, i: int, y: float) -> float:
     return (1.0 - t) * w[i, 1] + t * w[i, 2]
 
 
+@wp.struct
+class GridWarp:
+    """The set-up of ``square_to_grid_bilinear`` for one knot grid: the knots, the masses of the
+    three rows (y = 0, ½, 1) that give y's marginal, and the whole mass (the density's norm). One
+    shading point draws all its samples of a light from one set-up."""
+
+    w: wp.mat33
+    g0: float
+    g1: float
+    g2: float
+    total: float
+
+
+@wp.func
+def grid_warp_setup(w: wp.mat33) -> GridWarp:
+    """``GridWarp`` for the 3 × 3 knot values w[i, j] at (x, y) = (i/2, j/2) (all >= 0, not all 0)."""
+    g = GridWarp()
+    g.w = w
+    g.g0 = w[0, 0] + 2.0 * w[1, 0] + w[2, 0]
+    g.g1 = w[0, 1] + 2.0 * w[1, 1] + w[2, 1]
+    g.g2 = w[0, 2] + 2.0 * w[1, 2] + w[2, 2]
+    total = float(0.0)
+    for i in range(3):
+        total += (w[i, 0] + 2.0 * w[i, 1] + w[i, 2]) * wp.where(i == 1, 2.0, 1.0)
+    g.total = total
+    return g
+
+
+@wp.func(inline=True)
+def grid_pdf_at(x: float, a: float, b: float, c: float, total: float) -> float:
+    """The warp's density at x on the row whose knots (x = 0, ½, 1) are a, b, c."""
+    f = float(0.0)
+    if x < 0.5:
+        f = a + (b - a) * (2.0 * x)
+    else:
+        f = b + (c - b) * (2.0 * x - 1.0)
+    return 16.0 * f / total
+
+
+@wp.func
+def grid_warp_sample(g: GridWarp, u: wp.vec2) -> wp.vec3:
+    """(x, y, density) of ``square_to_grid_bilinear`` from a set-up: the density comes from the
+    row the draw of x interpolated anyway."""
+    y = sample_two_linear(u[1], g.g0, g.g1, g.g2)
+    a = grid_lerp(g.w, 0, y)
+    b = grid_lerp(g.w, 1, y)
+    c = grid_lerp(g.w, 2, y)
+    x = sample_two_linear(u[0], a, b, c)
+    return wp.vec3(x, y, grid_pdf_at(x, a, b, c, g.total))
+
+
 @wp.func
 def square_to_grid_bilinear(u: wp.vec2, w: wp.mat33) -> wp.vec2:
     """A point of the unit square with density in proportion to the bilinear interpolation of the
     3 × 3 knot values w[i, j] at (x, y) = (i/2, j/2) (all >= 0, not all 0): y from its marginal
     (piecewise linear: the trapezoid rule along x is exact), then x given y. The map is monotone
     in each coordinate, so stratified and low-discrepancy points stay so. Density:
-    ``grid_bilinear_pdf``."""
-    g0 = w[0, 0] + 2.0 * w[1, 0] + w[2, 0]
-    g1 = w[0, 1] + 2.0 * w[1, 1] + w[2, 1]
-    g2 = w[0, 2] + 2.0 * w[1, 2] + w[2, 2]
-    y = sample_two_linear(u[1], g0, g1, g2)
-    x = sample_two_linear(u[0], grid_lerp(w, 0, y), grid_lerp(w, 1, y), grid_lerp(w, 2, y))
-    return wp.vec2(x, y)
+    ``grid_bilinear_pdf``; many draws from one grid: ``grid_warp_setup`` and ``grid_warp_sample``."""
+    q = grid_warp_sample(grid_warp_setup(w), u)
+    return wp.vec2(q[0], q[1])
 
 
 @wp.func
 def grid_bilinear_pdf(q: wp.vec2, w: wp.mat33) -> float:
     """Density of ``square_to_grid_bilinear`` at q (with respect to area on the unit square)."""
-    x = q[0]
-    a = grid_lerp(w, 0, q[1])
-    b = grid_lerp(w, 1, q[1])
-    c = grid_lerp(w, 2, q[1])
-    f = float(0.0)
-    if x < 0.5:
-        f = a + (b - a) * (2.0 * x)
-    else:
-        f = b + (c - b) * (2.0 * x - 1.0)
-    total = 0.0
-    for i in range(3):
-        total += (w[i, 0] + 2.0 * w[i, 1] + w[i, 2]) * wp.where(i == 1, 2.0, 1.0)
-    return 16.0 * f / total
+    return grid_pdf_at(q[0], grid_lerp(w, 0, q[1]), grid_lerp(w, 1, q[1]), grid_lerp(w, 2, q[1]),
+                       grid_warp_setup(w).total)
 
 
 @wp.func
@@ -702,17 +738,10 @@ def sphrect_sample_y(r: SphRect, dx: float, u1: float) -> float:
 
 
 @wp.func
-def square_to_spherical_rect(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3, u: wp.vec2) -> wp.vec4:
-    """A point on the rectangle corner + a·e1 + b·e2 (a, b in [0, 1], e1 ⟂ e2) whose direction from
-    p is uniform in the solid angle the rectangle subtends; returns (y, Ω), so the density of the
-    direction is 1/Ω. Either side of the rectangle is sampled.
-
-    Returns Ω = 0 (w component) when Ω < SPHRECT_MIN_SOLID_ANGLE, p lies in the rectangle's
-    plane, the rectangle has zero area or the computation fails; xyz is then the area sample
-    corner + u0·e1 + u1·e2, for the caller's area-sampling fallback. The point always lies on the
-    rectangle (a and b are clamped to [0, 1])."""
+def sphrect_sample(r: SphRect, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3, u: wp.vec2) -> wp.vec4:
+    """``square_to_spherical_rect`` from its set-up ``sphrect_setup(p, corner, e1, e2)`` (many
+    draws from one shading point share it)."""
     area_y = corner + u[0] * e1 + u[1] * e2
-    r = sphrect_setup(p, corner, e1, e2)
     if not (r.omega >= SPHRECT_MIN_SOLID_ANGLE):
         return wp.vec4(area_y[0], area_y[1], area_y[2], 0.0)
     dx = sphrect_sample_x(r, u[0])
@@ -723,6 +752,19 @@ def square_to_spherical_rect(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.ve
         return wp.vec4(area_y[0], area_y[1], area_y[2], 0.0)
     y = corner + a * e1 + b * e2
     return wp.vec4(y[0], y[1], y[2], r.omega)
+
+
+@wp.func
+def square_to_spherical_rect(p: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3, u: wp.vec2) -> wp.vec4:
+    """A point on the rectangle corner + a·e1 + b·e2 (a, b in [0, 1], e1 ⟂ e2) whose direction from
+    p is uniform in the solid angle the rectangle subtends; returns (y, Ω), so the density of the
+    direction is 1/Ω. Either side of the rectangle is sampled.
+
+    Returns Ω = 0 (w component) when Ω < SPHRECT_MIN_SOLID_ANGLE, p lies in the rectangle's
+    plane, the rectangle has zero area or the computation fails; xyz is then the area sample
+    corner + u0·e1 + u1·e2, for the caller's area-sampling fallback. The point always lies on the
+    rectangle (a and b are clamped to [0, 1])."""
+    return sphrect_sample(sphrect_setup(p, corner, e1, e2), corner, e1, e2, u)
 
 
 @wp.func

@@ -28,8 +28,8 @@ from .records import (
     SceneData, SolidRec, SphereRec,
 )
 from .sampling import (
-    frame_from_z, grid_bilinear_pdf, is_rectangle_edges, square_to_cone, square_to_disk, square_to_grid_bilinear,
-    square_to_spherical_rect,
+    GridWarp, SphRect, frame_from_z, grid_warp_sample, grid_warp_setup, is_rectangle_edges, sphrect_sample,
+    sphrect_setup, square_to_cone, square_to_disk,
 )
 from .scene.description import Box, Capsule, Cylinder, Disk, Plane, Rectangle, Sphere
 from .scene.transform import quaternion_matrix
@@ -246,8 +246,23 @@ def rect_cosine_weights(rec: RectRec, p: wp.vec3, n: wp.vec3, solid_angle: bool)
     return w
 
 
-@wp.func(inline=True)
-def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u_in: wp.vec2) -> EmitterSample:
+@wp.struct
+class EmitterPrep:
+    """What a shading point p works out once for an emitter before drawing its samples: whether p
+    can get light from it at all, and for a rectangle how its points are drawn (the cosine warp's
+    set-up, the spherical rectangle's set-up when drawn by solid angle)."""
+
+    ok: int  # 0: no light reaches p from it (behind a one-sided emitter, wholly below p's horizon)
+    cosine: int  # the square warped by ``warp`` first
+    solid: int  # then mapped by solid angle (``sphrect``), else by area
+    warp: GridWarp
+    sphrect: SphRect
+    area: float
+    mag: float
+
+
+@wp.func
+def prepare_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int) -> EmitterPrep:
     """A rectangle near p: uniform in the solid angle it subtends (spherical rectangles; the
     irradiance estimate then varies only with cosθ at p); a far one, a sheared parallelogram, or
     a solid angle too small to matter: uniform by area. With ``cosine`` != 0 the square is first
@@ -255,10 +270,10 @@ def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u_in:
     through 3 × 3 knots (``rect_cosine_weights``; pbrt-v4's lights fit the corners alone): a
     point in full view then contributes nearly the same whatever the sample, and low-discrepancy
     samples keep their stratification in penumbrae. Every estimator is unbiased (the density never vanishes where
-    n·ω > 0)."""
-    mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
+    n·ω > 0). Draws: ``sample_rect_prepared``."""
+    e = EmitterPrep()
     if not (wp.dot(rec.n, p - rec.c) > 0.0):
-        return EmitterSample()  # p behind (or in the plane of) a one-sided emitter: no light
+        return e  # p behind (or in the plane of) a one-sided emitter: no light
     # near a rectangle (its size at least SPHRECT_NEAR times its distance) the area-sampling weight
     # cosθ'/r² varies across it and solid-angle sampling pays for its cost (~250 ns against
     # ~10 ns); farther, both weights are nearly constant and area sampling is as good. The cosine
@@ -269,16 +284,34 @@ def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u_in:
         near_at = SPHRECT_NEAR_COSINE
     near = wp.length(rec.e1) + wp.length(rec.e2) >= near_at * wp.length(centre - p)
     solid = near and is_rectangle_edges(rec.e1, rec.e2)
-    u = u_in
-    warp_pdf = float(1.0)
     if cosine != 0:
         w = rect_cosine_weights(rec, p, n, solid)
         if not (w[0, 0] > 0.0):
-            return EmitterSample()  # every point of the light below the horizon: n·ω <= 0 throughout
-        u = square_to_grid_bilinear(u_in, w)
-        warp_pdf = grid_bilinear_pdf(u, w)
+            return e  # every point of the light below the horizon: n·ω <= 0 throughout
+        e.warp = grid_warp_setup(w)
+        e.cosine = 1
     if solid:
-        q = square_to_spherical_rect(p, rec.c, rec.e1, rec.e2, u)
+        e.sphrect = sphrect_setup(p, rec.c, rec.e1, rec.e2)
+        e.solid = 1
+    e.area = wp.length(wp.cross(rec.e1, rec.e2))
+    e.mag = max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2)
+    e.ok = 1
+    return e
+
+
+@wp.func(inline=True)
+def sample_rect_prepared(rec: RectRec, prep: EmitterPrep, p: wp.vec3, u_in: wp.vec2) -> EmitterSample:
+    """A point of the rectangle drawn as ``prepare_rect_emitter`` set up for p."""
+    if prep.ok == 0:
+        return EmitterSample()
+    u = u_in
+    warp_pdf = float(1.0)
+    if prep.cosine != 0:
+        g = grid_warp_sample(prep.warp, u_in)
+        u = wp.vec2(g[0], g[1])
+        warp_pdf = g[2]
+    if prep.solid != 0:
+        q = sphrect_sample(prep.sphrect, rec.c, rec.e1, rec.e2, u)
         if q[3] > 0.0:
             e = EmitterSample()
             y = wp.vec3(q[0], q[1], q[2])
@@ -294,12 +327,18 @@ def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u_in:
             e.l = l
             e.dist = dist
             e.inv_pdf = q[3] / warp_pdf  # 1 / (1/Ω · the warp's density)
-            e.mag = mag
+            e.mag = prep.mag
             return e
     y = rec.c + u[0] * rec.e1 + u[1] * rec.e2
-    e = planar_emitter(y, rec.n, wp.length(wp.cross(rec.e1, rec.e2)), mag, p)
+    e = planar_emitter(y, rec.n, prep.area, prep.mag, p)
     e.inv_pdf = e.inv_pdf / warp_pdf
     return e
+
+
+@wp.func
+def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u: wp.vec2) -> EmitterSample:
+    """One draw of ``prepare_rect_emitter`` then ``sample_rect_prepared``."""
+    return sample_rect_prepared(rec, prepare_rect_emitter(rec, p, n, cosine), p, u)
 
 
 @wp.func(inline=True)
@@ -309,13 +348,24 @@ def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
     return planar_emitter(y, rec.n, wp.pi * rec.r * rec.r, max_abs(rec.c) + rec.r, p)
 
 
+@wp.func
+def prepare_emitter(scene: SceneData, kind: int, row: int, p: wp.vec3, n: wp.vec3, cosine: int) -> EmitterPrep:
+    """What shading point p (shading normal n) works out once for the emitting shape (kind, row)
+    before drawing its samples (``sample_emitter``); ``cosine``: RenderParams.light_sampling
+    (rectangles drawn in proportion to n·ω)."""
+    if kind == KIND_RECT:
+        return prepare_rect_emitter(scene.rects[row], p, n, cosine)
+    e = EmitterPrep()
+    e.ok = 1
+    return e
+
+
 @wp.func(inline=True)
-def sample_emitter(scene: SceneData, kind: int, row: int, p: wp.vec3, n: wp.vec3, cosine: int,
-                   u: wp.vec2) -> EmitterSample:
-    """A point of the emitting shape (kind, row) for shading point p (shading normal n), from the
-    2D sample u; ``cosine``: RenderParams.light_sampling (rectangles drawn in proportion to n·ω)."""
+def sample_emitter(scene: SceneData, kind: int, row: int, prep: EmitterPrep, p: wp.vec3, u: wp.vec2) -> EmitterSample:
+    """A point of the emitting shape (kind, row) for shading point p from the 2D sample u, drawn as
+    ``prep = prepare_emitter(scene, kind, row, p, ...)`` says."""
     if kind == KIND_SPHERE:
         return sample_sphere_emitter(scene.spheres[row], p, u)
     if kind == KIND_RECT:
-        return sample_rect_emitter(scene.rects[row], p, n, cosine, u)
+        return sample_rect_prepared(scene.rects[row], prep, p, u)
     return sample_disk_emitter(scene.disks[row], p, u)

@@ -443,6 +443,20 @@ def test_identical_coincident_shapes_first_listed_wins_everywhere(kind):
     np.testing.assert_array_equal(img, again)
 
 
+def test_a_tie_the_bvh_reaches_second_still_goes_to_the_first_listed():
+    """Two rectangles on y = 0, the small one listed first: the same t bit for bit where both
+    are hit, and the large one's box (padded in proportion to its size) is entered first, so the
+    BVH meets the later-listed shape first. The first listed must still win on all its pixels,
+    as the loops over shapes would give: exactly the pixels it covers alone."""
+    small = warprt.Rectangle(corner=(-2, 0, -2), edge1=(0, 0, 4), edge2=(4, 0, 0), material="a")
+    large = warprt.Rectangle(corner=(-4, 0, -4), edge1=(0, 0, 8), edge2=(8, 0, 0), material="b")
+    scene = coincident_scene("axis-rectangle", "axis-rectangle")
+    a, b, covered = _winners(image(scene.replace(shapes=(small, large))))
+    alone = image(scene.replace(shapes=(small,))).max(axis=-1) > 0
+    assert alone.sum() > 400 and b.sum() > 50
+    np.testing.assert_array_equal(a, alone)
+
+
 @pytest.mark.parametrize("first, second, winner", [
     ("axis-rectangle", "axis-plane", "b"), ("axis-disk", "axis-plane", "b"), ("axis-disk", "axis-rectangle", "b"),
     ("axis-plane", "axis-rectangle", "a")], ids=["rect-plane", "disk-plane", "disk-rect", "plane-rect"])
