@@ -810,6 +810,13 @@ def _fmt_cpu_ratio(row) -> str:
     return "n/a" if r is None else f"{r:.2f}×"
 
 
+def _llvm_note(machine: dict) -> str:
+    """Which LLVM library Dr.Jit's LLVM backend ran on (its code generation, hence Mitsuba's
+    speed, depends on the version): " (libLLVM-15.so)"; empty for other variants or older runs."""
+    lib = machine.get("libllvm")
+    return f" ({os.path.basename(lib)})" if lib and machine.get("variant", "").startswith("llvm") else ""
+
+
 def markdown_table(results: dict) -> str:
     lines = ["| scene | size | same image? | warprt → 1e-2 | Mitsuba → 1e-2 | ratio | warprt → 1e-3 | "
              "Mitsuba → 1e-3 | ratio | ratio on CPU s | Msamples/s warprt | Msamples/s Mitsuba |",
@@ -835,7 +842,7 @@ def markdown_table(results: dict) -> str:
                  f"each with its best sampler; \"≤\": below the target already at 1 spp, an upper bound, and \"~\" a ratio "
                  f"from one; \"ratio on CPU s\": "
                  f"the same at 1e-3 on process CPU seconds. Mitsuba {m['mitsuba']} "
-                 f"`{m['variant']}`, warprt {m['warprt']} on the CPU device, {THREADS} threads each, "
+                 f"`{m['variant']}`{_llvm_note(m)}, warprt {m['warprt']} on the CPU device, {THREADS} threads each, "
                  f"{results['repeats']} interleaved repeats, min time; {m['cpus']} CPU cores, Python {m['python']}. "
                  f"Msamples/s: pixel samples per second at the highest spp all four curves reached "
                  f"({', '.join(sorted({str(r['throughput_spp']) for r in results['scenes'].values()}))} spp).")
@@ -978,7 +985,8 @@ def main(argv=None) -> int:
 
     results = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
                            "warprt": warprt.__version__, "warp": wp.config.version, "mitsuba": mi.__version__,
-                           "drjit": dr.__version__, "variant": variant, "variant_note": note, "threads": THREADS},
+                           "drjit": dr.__version__, "variant": variant, "variant_note": note, "threads": THREADS,
+                           "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH")},
                "quick": q, "repeats": args.repeats, "spps": args.spps, "ref_spp": args.ref_spp,
                "check_spp": args.check_spp, "early_stop": args.early_stop, "min_spp": args.min_spp,
                "targets": list(TARGETS),
