@@ -21,8 +21,10 @@ render: $(STAMP)
 	mkdir -p out
 	$(PY) -m warprt render scenes/showcase.toml -o out/showcase.png -o out/showcase.exr
 
+# the suite in TEST_WORKERS processes (pytest-xdist): a cold kernel cache compiles on every core
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 # mutation testing (not part of `make test`): one-line mistakes in the physics, each must be
 # caught by the tests listed for it in tests/mutations.toml

@@ -60,15 +60,40 @@ def cuda_device() -> str:
     return "cuda:0"
 
 
-def pytest_terminal_summary(terminalreporter):
-    """Report (and record for the benchmarks) how many render-kernel variants this run built:
-    each is one Warp module, a few seconds of compile on a cold cache."""
-    import json
-
+def _variants_built() -> dict:
+    """The render-kernel variants and other warprt modules this process built."""
     from warprt import aov, integrator, query
 
     keys = sorted(f.key for (f,) in integrator.kernels_for.built())
     extra = [name for name, factory in (("query", query._query_kernels), ("aov", aov._aov_kernel)) if factory.built()]
+    return {"variants": keys, "other_modules": extra}
+
+
+_WORKER_RECORDS: list[dict] = []  # under pytest-xdist: what each worker process built
+
+
+def pytest_sessionfinish(session):
+    """An xdist worker hands what it built to the controller (``pytest_testnodedown``)."""
+    if hasattr(session.config, "workeroutput"):
+        session.config.workeroutput["warprt_built"] = _variants_built()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    record = getattr(node, "workeroutput", {}).get("warprt_built")
+    if record:
+        _WORKER_RECORDS.append(record)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Report (and record for the benchmarks) how many render-kernel variants this run built
+    (with ``-n``: in all its worker processes together): each is one Warp module, a few seconds
+    of compile on a cold cache."""
+    import json
+
+    records = [_variants_built()] + _WORKER_RECORDS
+    keys = sorted({k for r in records for k in r["variants"]})
+    extra = [name for name in ("query", "aov") if any(name in r["other_modules"] for r in records)]
     record = {"render_kernel_variants": len(keys), "variants": keys, "other_modules": extra}
     terminalreporter.write_line(f"warprt kernel variants built: {len(keys)} render ({', '.join(keys)})"
                                 + "".join(f" + the {name} module" for name in extra))
