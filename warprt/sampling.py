@@ -309,7 +309,7 @@ def grid_warp_setup(w: wp.mat33) -> GridWarp:
     g.g0 = w[0, 0] + 2.0 * w[1, 0] + w[2, 0]
     g.g1 = w[0, 1] + 2.0 * w[1, 1] + w[2, 1]
     g.g2 = w[0, 2] + 2.0 * w[1, 2] + w[2, 2]
-    total = float(0.0)
+    total = float(0.0)  # g0 + 2·g1 + g2, summed by columns as the density always has been
     for i in range(3):
         total += (w[i, 0] + 2.0 * w[i, 1] + w[i, 2]) * wp.where(i == 1, 2.0, 1.0)
     g.total = total

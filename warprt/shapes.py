@@ -301,9 +301,8 @@ def prepare_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int) -> E
 
 @wp.func(inline=True)
 def sample_rect_prepared(rec: RectRec, prep: EmitterPrep, p: wp.vec3, u_in: wp.vec2) -> EmitterSample:
-    """A point of the rectangle drawn as ``prepare_rect_emitter`` set up for p."""
-    if prep.ok == 0:
-        return EmitterSample()
+    """A point of the rectangle drawn as ``prepare_rect_emitter`` set up for p (``prep.ok`` is 1:
+    callers skip a light whose set-up says no light reaches p)."""
     u = u_in
     warp_pdf = float(1.0)
     if prep.cosine != 0:
@@ -338,7 +337,10 @@ def sample_rect_prepared(rec: RectRec, prep: EmitterPrep, p: wp.vec3, u_in: wp.v
 @wp.func
 def sample_rect_emitter(rec: RectRec, p: wp.vec3, n: wp.vec3, cosine: int, u: wp.vec2) -> EmitterSample:
     """One draw of ``prepare_rect_emitter`` then ``sample_rect_prepared``."""
-    return sample_rect_prepared(rec, prepare_rect_emitter(rec, p, n, cosine), p, u)
+    prep = prepare_rect_emitter(rec, p, n, cosine)
+    if prep.ok == 0:
+        return EmitterSample()
+    return sample_rect_prepared(rec, prep, p, u)
 
 
 @wp.func(inline=True)
@@ -363,7 +365,7 @@ def prepare_emitter(scene: SceneData, kind: int, row: int, p: wp.vec3, n: wp.vec
 @wp.func(inline=True)
 def sample_emitter(scene: SceneData, kind: int, row: int, prep: EmitterPrep, p: wp.vec3, u: wp.vec2) -> EmitterSample:
     """A point of the emitting shape (kind, row) for shading point p from the 2D sample u, drawn as
-    ``prep = prepare_emitter(scene, kind, row, p, ...)`` says."""
+    ``prep = prepare_emitter(scene, kind, row, p, ...)`` says (called only when ``prep.ok`` is 1)."""
     if kind == KIND_SPHERE:
         return sample_sphere_emitter(scene.spheres[row], p, u)
     if kind == KIND_RECT:
