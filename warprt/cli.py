@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--workers", type=_positive_int, help="CPU worker threads (default: one per core)")
     r.add_argument("--time-budget", type=_positive_float, help="stop after this many seconds of rendering")
     r.add_argument("--adaptive", action="store_true",
-                   help="adaptive sampling: spp is the mean per pixel, noisy pixels get more (a pilot of spp/4 first)")
+                   help="adaptive sampling: spp is the mean per pixel, noisy pixels get more (decided after the first spp/2)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--aovs", type=_aov_list, default=[],
                    help="extra EXR layers, comma separated: depth,z,normal,albedo,position,object_id,material,motion")

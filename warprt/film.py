@@ -138,25 +138,35 @@ class Film:
 
 ADAPTIVE_MIN_SHARE = 2  # adaptive sampling gives every pixel at least spp / 2 samples (and at least 1)
 ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass costs every pixel a little)
+# the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
+ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
 
 
-def adaptive_counts(pilot: Film, n0: int, spp: int) -> np.ndarray:
-    """Per-pixel sample counts averaging ``spp``, from a pilot film of ``n0`` samples per pixel.
+def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
+    """Per-pixel sample counts averaging ``spp``, from a film holding the first ``n0`` samples of
+    every pixel (the pilot, which each count includes).
 
-    Each pixel gets at least spp / ADAPTIVE_MIN_SHARE samples; the rest of the budget goes in
-    proportion to the pixel's standard deviation (of luminance, from the pilot), which minimises
-    the summed variance Σ σ²/N of the pixel means for a given total (Neyman allocation). The
-    deviations are first raised to the largest of each pixel's 3 × 3 neighbourhood, so that an
-    edge or penumbra that the few pilot samples missed in one pixel is caught from its
-    neighbours. Counts stop at ADAPTIVE_MAX_FACTOR × spp."""
-    h, w = pilot.height, pilot.width
-    sd = np.sqrt(pilot.luminance_stats(n0)[1]).reshape(h, w)
-    pad = np.pad(sd, 1, mode="edge")
-    sd = np.max([pad[a:a + h, b:b + w] for a in range(3) for b in range(3)], axis=0).reshape(-1)
-    n_min = max(1, spp // ADAPTIVE_MIN_SHARE)
-    total = float(sd.sum())
-    if not (total > 0.0) or not math.isfinite(total):
-        return np.full(h * w, spp, dtype=np.int32)
-    rest = float(spp - n_min) * sd.size
-    counts = np.rint(n_min + rest * sd / total)
+    A pixel's count comes from other pixels' pilot samples only, never its own: the pixels are
+    coloured as a checkerboard, and a pixel gets the largest standard deviation (of luminance)
+    among the ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5
+    window). So its count is independent of its own samples, and the mean of all of them, pilot
+    included, stays unbiased: no sample is thrown away. The maximum over neighbours also catches
+    an edge or a penumbra that a pixel's few pilot samples missed. Within each colour the budget
+    is shared in proportion to those deviations (Neyman allocation: the summed variance Σ σ²/N of
+    the pixel means is least for a given total), with every pixel at least
+    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp; the normaliser of a
+    colour is itself a function of the other colour's samples."""
+    h, w = film.height, film.width
+    sd = np.sqrt(film.luminance_stats(n0)[1]).reshape(h, w)
+    pad = np.pad(sd, 2, mode="constant", constant_values=0.0)  # outside the image: no neighbour
+    nb = np.max([pad[2 + a:2 + a + h, 2 + b:2 + b + w] for a, b in ADAPTIVE_NEIGHBOURS], axis=0).reshape(-1)
+    yy, xx = np.mgrid[0:h, 0:w]
+    colour = ((yy + xx) & 1).reshape(-1)
+    n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
+    counts = np.full(h * w, float(spp))
+    for c in (0, 1):
+        mine = colour == c
+        total = float(nb[mine].sum())
+        if total > 0.0 and math.isfinite(total):
+            counts[mine] = np.rint(n_min + float(spp - n_min) * np.count_nonzero(mine) * nb[mine] / total)
     return np.clip(counts, n_min, ADAPTIVE_MAX_FACTOR * spp).astype(np.int32)

@@ -83,13 +83,8 @@ def default_workers() -> int:
 
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 ADAPTIVE_MIN_SPP = 8  # below this budget adaptive sampling renders uniformly (too few samples to share)
-ADAPTIVE_PILOT_FRACTION = 4  # the pilot takes spp / 4 samples per pixel (at least 2)
+ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel (at least 2)
 SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
-
-
-def pilot_seed(seed: int) -> int:
-    """The seed of adaptive sampling's pilot: other noise than the image's own samples."""
-    return (seed * 0x9E3779B1 + 0x7F4A7C15) & 0xFFFFFFFF
 
 
 def pixels_per_thread(device, width: int) -> int:
@@ -229,6 +224,7 @@ class Renderer:
         self.kernel = kernels_for(self.features).render
         self._loaded = None  # the kernel loaded on the device by compile()
         self._pool = WorkerPool("warprt-render")
+        self._sample_time = 0.0  # seconds a sample of every pixel took in the last pass run (sizes passes)
         self._light_samples = None  # what samples = "auto" became (light_samples())
 
     def update(self, scene: Scene) -> None:
@@ -326,11 +322,12 @@ class Renderer:
         event (anything with ``is_set()``, e.g. ``threading.Event``) read after each pass like Ctrl-C:
         once set, the render returns what it has, marked ``interrupted`` (how a Ctrl-C reaches
         renders in worker threads and processes, where no SIGINT handler can be installed).
-        ``adaptive=True``: adaptive sampling. A pilot of spp/4 samples per pixel (another seed)
-        measures each pixel's noise, and the ``spp × pixels`` budget is shared out in proportion to
-        it (every pixel at least spp/2, at most 8 × spp; ``film.adaptive_counts``); the image is
-        made of those samples only, so it stays unbiased. ``RenderResult.spp`` is then the mean
-        count. Below 8 spp it renders uniformly; it does not combine with ``time_budget`` or
+        ``adaptive=True``: adaptive sampling. The first spp/2 samples of every pixel (the pilot)
+        measure the noise, and the ``spp × pixels`` budget, pilot included, is shared out in
+        proportion to it (every pixel at least spp/2, at most 8 × spp). A pixel's count comes from
+        its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps every
+        sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean count.
+        Below 8 spp it renders uniformly; it does not combine with ``time_budget`` or
         ``target_error``."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
@@ -378,26 +375,22 @@ class Renderer:
             with ctrl_c:
                 planned = int(spp)
                 interrupted = False
+                params = render_params(self.scene, int(spp), int(seed), self.built.features)
+                done, rel_err = 0, None
                 if adaptive and spp >= ADAPTIVE_MIN_SPP:
-                    # a pilot of independent samples (another seed) decides each pixel's count; the
-                    # image is made of the main samples only, so the counts cannot bias it
-                    pilot = Film(width, height, dev)
+                    # the pilot: the first n0 samples of every pixel, which then decide the other
+                    # pixels' counts (never their own, see film.adaptive_counts) and stay in the image
                     n0 = max(2, int(spp) // ADAPTIVE_PILOT_FRACTION)
-                    pilot_params = render_params(self.scene, n0, pilot_seed(int(seed)), self.built.features)
-                    done, interrupted, _ = self._passes(pilot, pilot_params, n0, ctrl_c, None, None, None, **run)
-                    if interrupted:
-                        film, params = pilot, pilot_params  # stopped during the pilot: its samples are the image
-                    else:
-                        counts = adaptive_counts(pilot, done, int(spp))
+                    done, interrupted, _ = self._passes(film, params, 0, n0, ctrl_c, bar, None, None, **run)
+                    if not interrupted:
+                        counts = adaptive_counts(film, done, int(spp))
                         film.set_counts(counts)
                         planned = int(counts.max())
                         if bar is not None:
                             bar.total = planned  # the main passes run to the largest count
                             bar.refresh()
-                rel_err = None
                 if not interrupted:
-                    params = render_params(self.scene, planned, int(seed), self.built.features)
-                    done, interrupted, rel_err = self._passes(film, params, planned, ctrl_c, bar, time_budget,
+                    done, interrupted, rel_err = self._passes(film, params, done, planned, ctrl_c, bar, time_budget,
                                                               target_error, **run)
         finally:
             if bar is not None:
@@ -414,10 +407,12 @@ class Renderer:
                             stack_overflows=film.overflows(), features=self.features,
                             device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
 
-    def _passes(self, film: Film, params, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error, *,
-                workers: int, n_slices: int, pass_spp, stop) -> tuple[int, bool, float | None]:
-        """Run passes of samples [0, spp) into ``film`` (stopping early for Ctrl-C, ``stop``,
-        ``time_budget`` or ``target_error``): (samples run, interrupted, relative error or None)."""
+    def _passes(self, film: Film, params, start: int, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error,
+                *, workers: int, n_slices: int, pass_spp, stop) -> tuple[int, bool, float | None]:
+        """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
+        early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
+        relative error or None). The first pass of a render is one sample (to time one); passes
+        after that, and those of a continued render, are sized from the time per sample so far."""
         cam = self.scene.camera
         dev = self.device
         # one recorded launch per slice, replayed every pass with the pass's sample range
@@ -427,11 +422,16 @@ class Renderer:
                     for first, stride, count in _slices(cam.width, cam.height, n_slices)]
         pool = self._pool.get(workers)
 
-        done, interrupted, rel_err = 0, False, None
+        done, interrupted, rel_err = start, False, None
         elapsed = 0.0
-        start = _time.perf_counter()
+        t_start = _time.perf_counter()
         while done < spp:
-            size = 1 if done == 0 else self._next_pass(done, elapsed, pass_spp, time_budget)
+            if done > start:
+                size = self._next_pass(done - start, elapsed, pass_spp, time_budget)
+            elif start > 0 and self._sample_time > 0.0:
+                size = self._next_pass(1, self._sample_time, pass_spp, time_budget)
+            else:
+                size = 1
             size = min(size, spp - done)
             try:
                 run_pass(pool, launches, workers, done, done + size)
@@ -439,7 +439,8 @@ class Renderer:
                 interrupted = True
             wp.synchronize_device(dev)
             done += size
-            elapsed = _time.perf_counter() - start
+            elapsed = _time.perf_counter() - t_start
+            self._sample_time = elapsed / (done - start)
             if bar is not None:
                 bar.update(size)
             if ctrl_c.pressed or (stop is not None and stop.is_set()):
