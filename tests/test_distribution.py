@@ -401,7 +401,7 @@ def _penumbra_scene(w=40, h=28):
 def test_adaptive_sampling_spends_the_budget_where_the_noise_is():
     """At the same budget (32 spp on average, its pilot of 16 included) the adaptive image is
     closer to a 1024-spp reference than the uniform one: relative MSE over 4 seeds, measured
-    0.36× of the uniform render's (its mean count is the budget, its fully lit floor keeps spp / 2)."""
+    0.31× of the uniform render's (its mean count is the budget, its fully lit floor keeps spp / 2)."""
     from warprt.testing import relative_mse
 
     scene = _penumbra_scene()

@@ -140,6 +140,7 @@ ADAPTIVE_MIN_SHARE = 2  # adaptive sampling gives every pixel at least spp / 2 s
 ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass costs every pixel a little)
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
+ADAPTIVE_NEAR_WEIGHT = 6.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
 
 
 def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
@@ -147,19 +148,28 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     every pixel (the pilot, which each count includes).
 
     A pixel's count comes from other pixels' pilot samples only, never its own: the pixels are
-    coloured as a checkerboard, and a pixel gets the largest standard deviation (of luminance)
-    among the ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5
-    window). So its count is independent of its own samples, and the mean of all of them, pilot
-    included, stays unbiased: no sample is thrown away. The maximum over neighbours also catches
-    an edge or a penumbra that a pixel's few pilot samples missed. Within each colour the budget
-    is shared in proportion to those deviations (Neyman allocation: the summed variance Σ σ²/N of
-    the pixel means is least for a given total), with every pixel at least
-    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp; the normaliser of a
-    colour is itself a function of the other colour's samples."""
+    coloured as a checkerboard, and a pixel's deviation (of luminance) is estimated from the
+    ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5 window): the
+    root of their weighted mean variance, the 4 edge neighbours weighing ADAPTIVE_NEAR_WEIGHT and
+    the 8 farther ones 1. So its count is independent of its own samples, and the mean of all of
+    them, pilot included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also
+    see an edge or a penumbra that a pixel's few samples may miss; the weights keep a thin edge's
+    samples on the pixels next to it. Within each colour the budget is shared in proportion to
+    those deviations (Neyman allocation: the summed variance Σ σ²/N of the pixel means is least
+    for a given total), with every pixel at least max(n0, spp / ADAPTIVE_MIN_SHARE) and at most
+    ADAPTIVE_MAX_FACTOR × spp; the normaliser of a colour is itself a function of the other
+    colour's samples."""
     h, w = film.height, film.width
-    sd = np.sqrt(film.luminance_stats(n0)[1]).reshape(h, w)
-    pad = np.pad(sd, 2, mode="constant", constant_values=0.0)  # outside the image: no neighbour
-    nb = np.max([pad[2 + a:2 + a + h, 2 + b:2 + b + w] for a, b in ADAPTIVE_NEIGHBOURS], axis=0).reshape(-1)
+    var = film.luminance_stats(n0)[1].reshape(h, w)
+    inside = np.pad(np.ones((h, w)), 2)  # outside the image: no neighbour
+    var = np.pad(var, 2)
+    wsum = np.zeros((h, w))
+    vsum = np.zeros((h, w))
+    for a, b in ADAPTIVE_NEIGHBOURS:
+        wt = ADAPTIVE_NEAR_WEIGHT if abs(a) + abs(b) == 1 else 1.0
+        wsum += wt * inside[2 + a:2 + a + h, 2 + b:2 + b + w]
+        vsum += wt * var[2 + a:2 + a + h, 2 + b:2 + b + w]
+    nb = np.sqrt(vsum / np.maximum(wsum, 1.0)).reshape(-1)
     yy, xx = np.mgrid[0:h, 0:w]
     colour = ((yy + xx) & 1).reshape(-1)
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
