@@ -20,8 +20,9 @@ Method (details in docs/benchmarks.md, "Side by side with Mitsuba 3"):
 2. A converged Mitsuba reference per scene (its own noise estimated from two half renders);
    warprt at high spp must converge to the same image before any time is compared.
 3. Both renderers on 2 threads, spp 1, 2, 4, ... 1024, with their samplers (warprt ``sobol``,
-   ``stratified`` and ``sobol+adaptive``, i.e. adaptive sampling with spp as the mean budget;
-   Mitsuba ``multijitter`` and ``independent``), one warm-up render per
+   ``stratified``, ``sobol+adaptive`` (adaptive sampling with spp as the mean budget),
+   ``sobol+split`` (area lights with ``samples = "auto"``) and ``sobol+split+adaptive``;
+   Mitsuba ``multijitter`` and ``independent``, and ``multijitter+split``), one warm-up render per
    (scene, sampler, spp) so kernel compile and JIT are excluded, repeats interleaved between the
    renderers, the minimum wall time of the repeats (process CPU time too), the mean error of the
    warm-up and the repeats less the reference's own noise. Time to relative MSE 1e-2 and 1e-3
@@ -64,7 +65,7 @@ THREADS = 2
 TARGETS = (1e-2, 1e-3)
 # +adaptive: Renderer.render(adaptive=True); +split: the area lights with samples = "auto" (the
 # renderer picks the shadow rays per camera sample from the variance split, warprt.splitting)
-WARPRT_SAMPLERS = ("sobol", "stratified", "sobol+adaptive", "sobol+split")
+WARPRT_SAMPLERS = ("sobol", "stratified", "sobol+adaptive", "sobol+split", "sobol+split+adaptive")
 MITSUBA_SAMPLERS = ("multijitter", "independent")
 # Mitsuba with warprt's light-sample split (emitter_samples = the N warprt's samples = "auto" chose),
 # run where that N is above 1: the same splitting, hand-set, for an even comparison
@@ -460,9 +461,9 @@ class WarprtSide:
         t0 = time.perf_counter()
         split = scene.replace(lights=tuple(dataclasses.replace(light, samples="auto") if hasattr(light, "samples")
                                            else light for light in scene.lights))
-        self.renderers = {s: warprt.Renderer((split if s.endswith("+split") else scene).with_settings(
+        self.renderers = {s: warprt.Renderer((split if "+split" in s else scene).with_settings(
             sampler=s.split("+")[0]), device="cpu") for s in WARPRT_SAMPLERS
-            if not s.endswith("+split") or any(hasattr(light, "samples") for light in scene.lights)}
+            if "+split" not in s or any(hasattr(light, "samples") for light in scene.lights)}
         self.build_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         for r in self.renderers.values():
@@ -479,7 +480,7 @@ class WarprtSide:
         """(image, wall seconds, spp rendered, CPU seconds of the whole process)."""
         c0, t0 = time.process_time(), time.perf_counter()
         res = self.renderers[sampler].render(spp=spp, seed=seed, workers=THREADS, progress=False,
-                                             adaptive=sampler.endswith("+adaptive"))
+                                             adaptive="+adaptive" in sampler)
         image = np.asarray(res.image, dtype=np.float32)
         return image, time.perf_counter() - t0, res.spp, time.process_time() - c0
 
@@ -865,6 +866,7 @@ def write_chart(results: dict, path: Path) -> bool:
     fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.9 * rows), squeeze=False)
     style = {"warprt/sobol": ("tab:blue", "o-"), "warprt/stratified": ("tab:blue", "s--"),
              "warprt/sobol+adaptive": ("tab:cyan", "^-"), "warprt/sobol+split": ("tab:purple", "v-"),
+             "warprt/sobol+split+adaptive": ("tab:pink", "D-"),
              "mitsuba/multijitter": ("tab:red", "o-"), "mitsuba/independent": ("tab:red", "s--"),
              "mitsuba/multijitter+split": ("tab:orange", "^-")}
     for ax, rec in zip(axes.flat, recs):

@@ -502,8 +502,13 @@ def test_adaptive_sampling_takes_a_budget_not_a_time_or_an_error():
     for opt in (dict(time_budget=1.0), dict(target_error=0.01)):
         with pytest.raises(warprt.RenderError, match="adaptive"):
             render(scene, 16, adaptive=True, **opt)
-    # below ADAPTIVE_MIN_SPP the budget is too small to share: a uniform render, bit for bit
-    assert render(scene, 4, seed=1, adaptive=True).image.tobytes() == render(scene, 4, seed=1).image.tobytes()
+    # below ADAPTIVE_MIN_SPP the budget is too small to share: a uniform render, bit for bit; from
+    # it on the counts differ (4 spp: a pilot of 2 samples a pixel)
+    from warprt.render import ADAPTIVE_MIN_SPP
+
+    below, at = ADAPTIVE_MIN_SPP - 1, ADAPTIVE_MIN_SPP
+    assert render(scene, below, seed=1, adaptive=True).image.tobytes() == render(scene, below, seed=1).image.tobytes()
+    assert render(scene, at, seed=1, adaptive=True).image.tobytes() != render(scene, at, seed=1).image.tobytes()
 
 
 def test_time_budget_stops_early_and_reports_the_spp_reached():

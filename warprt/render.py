@@ -82,7 +82,7 @@ def default_workers() -> int:
 
 
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
-ADAPTIVE_MIN_SPP = 8  # below this budget adaptive sampling renders uniformly (too few samples to share)
+ADAPTIVE_MIN_SPP = 4  # below this budget adaptive sampling renders uniformly (a pilot of one sample has no spread)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel (at least 2)
 SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
 
@@ -327,7 +327,7 @@ class Renderer:
         proportion to it (every pixel at least spp/2, at most 8 × spp). A pixel's count comes from
         its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps every
         sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean count.
-        Below 8 spp it renders uniformly; it does not combine with ``time_budget`` or
+        Below 4 spp it renders uniformly; it does not combine with ``time_budget`` or
         ``target_error``."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
