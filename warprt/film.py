@@ -8,6 +8,7 @@ as a (H, W, 3) ``wp.array`` left on the device.
 
 from __future__ import annotations
 
+import functools
 import math
 from types import SimpleNamespace
 
@@ -160,23 +161,34 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     ADAPTIVE_MAX_FACTOR × spp; the normaliser of a colour is itself a function of the other
     colour's samples."""
     h, w = film.height, film.width
-    var = film.luminance_stats(n0)[1].reshape(h, w)
-    inside = np.pad(np.ones((h, w)), 2)  # outside the image: no neighbour
-    var = np.pad(var, 2)
-    wsum = np.zeros((h, w))
-    vsum = np.zeros((h, w))
+    weights, colours = _adaptive_layout(h, w)
+    var = np.pad(film.luminance_stats(n0)[1].reshape(h, w).astype(np.float32), 2)  # 0 outside the image
+    near = np.zeros((h, w), dtype=np.float32)
+    far = np.zeros((h, w), dtype=np.float32)
     for a, b in ADAPTIVE_NEIGHBOURS:
-        wt = ADAPTIVE_NEAR_WEIGHT if abs(a) + abs(b) == 1 else 1.0
-        wsum += wt * inside[2 + a:2 + a + h, 2 + b:2 + b + w]
-        vsum += wt * var[2 + a:2 + a + h, 2 + b:2 + b + w]
-    nb = np.sqrt(vsum / np.maximum(wsum, 1.0)).reshape(-1)
-    yy, xx = np.mgrid[0:h, 0:w]
-    colour = ((yy + xx) & 1).reshape(-1)
+        if abs(a) + abs(b) == 1:
+            near += var[2 + a:2 + a + h, 2 + b:2 + b + w]
+        else:
+            far += var[2 + a:2 + a + h, 2 + b:2 + b + w]
+    nb = np.sqrt((ADAPTIVE_NEAR_WEIGHT * near + far).reshape(-1).astype(np.float64) / weights)
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
     counts = np.full(h * w, float(spp))
-    for c in (0, 1):
-        mine = colour == c
+    for mine in colours:
         total = float(nb[mine].sum())
         if total > 0.0 and math.isfinite(total):
-            counts[mine] = np.rint(n_min + float(spp - n_min) * np.count_nonzero(mine) * nb[mine] / total)
+            counts[mine] = np.rint(n_min + float(spp - n_min) * mine.size * nb[mine] / total)
     return np.clip(counts, n_min, ADAPTIVE_MAX_FACTOR * spp).astype(np.int32)
+
+
+@functools.lru_cache(maxsize=8)
+def _adaptive_layout(h: int, w: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """For an h × w film: each pixel's summed neighbour weights (fewer neighbours at the border;
+    at least 1, so that a pixel with none gets deviation 0) and the flat indices of the two
+    checkerboard colours."""
+    inside = np.pad(np.ones((h, w)), 2)
+    weights = np.zeros((h, w))
+    for a, b in ADAPTIVE_NEIGHBOURS:
+        wt = ADAPTIVE_NEAR_WEIGHT if abs(a) + abs(b) == 1 else 1.0
+        weights += wt * inside[2 + a:2 + a + h, 2 + b:2 + b + w]
+    colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
+    return np.maximum(weights.reshape(-1), 1.0), (np.flatnonzero(colour == 0), np.flatnonzero(colour == 1))
