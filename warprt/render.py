@@ -412,7 +412,9 @@ class Renderer:
         """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
         early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
         relative error or None). The first pass of a render is one sample (to time one); passes
-        after that, and those of a continued render, are sized from the time per sample so far."""
+        after that, and those of a continued render, take about half a second each, sized from
+        the time per sample so far and, with per-pixel counts, from how many pixels still sample
+        at each index."""
         cam = self.scene.camera
         dev = self.device
         # one recorded launch per slice, replayed every pass with the pass's sample range
@@ -422,16 +424,30 @@ class Renderer:
                     for first, stride, count in _slices(cam.width, cam.height, n_slices)]
         pool = self._pool.get(workers)
 
+        # the work of sample indices [0, s) in samples of every pixel: s itself, unless the film has
+        # per-pixel counts (adaptive sampling), where index s runs only where the count exceeds s
+        if film.counts is None:
+            work_at = np.arange(spp + 1, dtype=np.float64)
+        else:
+            n_pix = film.counts.size
+            active = n_pix - np.cumsum(np.bincount(np.minimum(film.counts, spp), minlength=spp + 1))[:-1]
+            work_at = np.concatenate(([0.0], np.cumsum(active) / n_pix))
+
         done, interrupted, rel_err = start, False, None
         elapsed = 0.0
         t_start = _time.perf_counter()
         while done < spp:
-            if done > start:
-                size = self._next_pass(done - start, elapsed, pass_spp, time_budget)
-            elif start > 0 and self._sample_time > 0.0:
-                size = self._next_pass(1, self._sample_time, pass_spp, time_budget)
+            if pass_spp is not None and done > 0:
+                size = pass_spp
+            elif done > start or (start > 0 and self._sample_time > 0.0):
+                # about half a second of work (or what is left of the time budget) at the time per
+                # sample of every pixel measured so far, this call's or the previous one's
+                per = elapsed / (work_at[done] - work_at[start]) if done > start else self._sample_time
+                target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
+                goal = work_at[done] + target / max(per, 1e-9)
+                size = max(1, int(np.searchsorted(work_at, goal, side="right")) - 1 - done)
             else:
-                size = 1
+                size = 1  # the first pass of a render: one sample, to time one
             size = min(size, spp - done)
             try:
                 run_pass(pool, launches, workers, done, done + size)
@@ -440,7 +456,8 @@ class Renderer:
             wp.synchronize_device(dev)
             done += size
             elapsed = _time.perf_counter() - t_start
-            self._sample_time = elapsed / (done - start)
+            if work_at[done] > work_at[start]:
+                self._sample_time = elapsed / (work_at[done] - work_at[start])
             if bar is not None:
                 bar.update(size)
             if ctrl_c.pressed or (stop is not None and stop.is_set()):
@@ -452,14 +469,6 @@ class Renderer:
                 if rel_err <= target_error:
                     break
         return done, interrupted, rel_err
-
-    @staticmethod
-    def _next_pass(done: int, elapsed: float, pass_spp: int | None, time_budget: float | None) -> int:
-        if pass_spp is not None:
-            return pass_spp
-        per_spp = max(elapsed / done, 1e-6)
-        target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
-        return max(1, int(target / per_spp))
 
 
 def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | None = None, **options):
