@@ -10,8 +10,9 @@ is one launch over the whole frame. A thread owns a pixel for the whole pass and
 samples in order, and every random number depends only on (seed, pixel, sample, dimension): the
 image is bit-identical for any slice count, worker count or pass split.
 
-Progressive rendering: the samples are split into passes (a first pass of one sample per pixel,
-then passes sized to take about half a second). ``time_budget`` stops after the pass that reaches
+Progressive rendering: the samples are split into passes (a renderer's very first pass is one
+sample per pixel, to time one; every later pass, in that render or the next, is sized to take
+about half a second from the time per sample last measured). ``time_budget`` stops after the pass that reaches
 the budget, ``target_error`` after the pass whose estimated relative standard error falls below
 it; Ctrl-C finishes the running pass and returns what was accumulated (during the passes, SIGINT
 only sets a flag read between passes: see ``_CtrlC``). ``RenderResult.spp`` says
@@ -224,7 +225,9 @@ class Renderer:
         self.kernel = kernels_for(self.features).render
         self._loaded = None  # the kernel loaded on the device by compile()
         self._pool = WorkerPool("warprt-render")
-        self._sample_time = 0.0  # seconds a sample of every pixel took in the last pass run (sizes passes)
+        # seconds a sample of every pixel took in the last passes, per (workers, slices): sizes the
+        # passes of the next render (one pass where they fit in half a second, not a 1-spp one first)
+        self._sample_time: dict[tuple[int, int], float] = {}
         self._light_samples = None  # what samples = "auto" became (light_samples())
 
     def update(self, scene: Scene) -> None:
@@ -236,6 +239,7 @@ class Renderer:
         self.built = DeviceScene(scene, self.device, assets=self.built.assets)
         self.scene = scene
         self._light_samples = None
+        self._sample_time.clear()
         needed = self.built.features
         if needed.union(self.features) != self.features:
             self.features = self.features.union(needed)
@@ -247,6 +251,7 @@ class Renderer:
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
         self._light_samples = None  # what the camera sees changes the split
+        self._sample_time.clear()  # and the time per sample
         if camera.moves and not self.features.motion or camera.aperture > 0 and not self.features.lens:
             self.update(self.scene)
 
@@ -411,10 +416,10 @@ class Renderer:
                 *, workers: int, n_slices: int, pass_spp, stop) -> tuple[int, bool, float | None]:
         """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
         early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
-        relative error or None). The first pass of a render is one sample (to time one); passes
-        after that, and those of a continued render, take about half a second each, sized from
-        the time per sample so far and, with per-pixel counts, from how many pixels still sample
-        at each index."""
+        relative error or None). The renderer's first pass is one sample (to time one); every
+        later pass takes about half a second, sized from the time per sample last measured with
+        these workers and slices and, with per-pixel counts, from how many pixels still sample at
+        each index."""
         cam = self.scene.camera
         dev = self.device
         # one recorded launch per slice, replayed every pass with the pass's sample range
@@ -435,19 +440,20 @@ class Renderer:
 
         done, interrupted, rel_err = start, False, None
         elapsed = 0.0
+        timing = (workers, n_slices)
         t_start = _time.perf_counter()
         while done < spp:
             if pass_spp is not None and done > 0:
                 size = pass_spp
-            elif done > start or (start > 0 and self._sample_time > 0.0):
+            elif done > start or self._sample_time.get(timing, 0.0) > 0.0:
                 # about half a second of work (or what is left of the time budget) at the time per
-                # sample of every pixel measured so far, this call's or the previous one's
-                per = elapsed / (work_at[done] - work_at[start]) if done > start else self._sample_time
+                # sample of every pixel measured so far, in this call or an earlier one
+                per = elapsed / (work_at[done] - work_at[start]) if done > start else self._sample_time[timing]
                 target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
                 goal = work_at[done] + target / max(per, 1e-9)
                 size = max(1, int(np.searchsorted(work_at, goal, side="right")) - 1 - done)
             else:
-                size = 1  # the first pass of a render: one sample, to time one
+                size = 1  # the renderer's first pass: one sample, to time one
             size = min(size, spp - done)
             try:
                 run_pass(pool, launches, workers, done, done + size)
@@ -457,7 +463,7 @@ class Renderer:
             done += size
             elapsed = _time.perf_counter() - t_start
             if work_at[done] > work_at[start]:
-                self._sample_time = elapsed / (work_at[done] - work_at[start])
+                self._sample_time[timing] = elapsed / (work_at[done] - work_at[start])
             if bar is not None:
                 bar.update(size)
             if ctrl_c.pressed or (stop is not None and stop.is_set()):
