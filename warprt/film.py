@@ -150,34 +150,57 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
 
     A pixel's count comes from other pixels' pilot samples only, never its own: the pixels are
     coloured as a checkerboard, and a pixel's deviation (of luminance) is estimated from the
-    ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5 window): the
-    root of their weighted mean variance, the 4 edge neighbours weighing ADAPTIVE_NEAR_WEIGHT and
-    the 8 farther ones 1. So its count is independent of its own samples, and the mean of all of
-    them, pilot included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also
-    see an edge or a penumbra that a pixel's few samples may miss; the weights keep a thin edge's
-    samples on the pixels next to it. Within each colour the budget is shared in proportion to
-    those deviations (Neyman allocation: the summed variance Σ σ²/N of the pixel means is least
-    for a given total), with every pixel at least max(n0, spp / ADAPTIVE_MIN_SHARE) and at most
+    ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5 window), the 4
+    edge neighbours weighing ADAPTIVE_NEAR_WEIGHT and the 8 farther ones 1: the root of their
+    weighted mean variance, or with a pilot of one sample (2 spp), the weighted spread of their
+    values about their weighted mean (noise and image detail alike: both call for samples). So
+    the count is independent of the pixel's own samples, and the mean of all of them, pilot
+    included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also see an edge or
+    a penumbra that a pixel's few samples may miss; the weights keep a thin edge's samples on the
+    pixels next to it. Within each colour the budget is shared in proportion to those deviations
+    (Neyman allocation: the summed variance Σ σ²/N of the pixel means is least for a given
+    total), with every pixel at least max(n0, spp / ADAPTIVE_MIN_SHARE) and at most
     ADAPTIVE_MAX_FACTOR × spp; the normaliser of a colour is itself a function of the other
     colour's samples."""
     h, w = film.height, film.width
     weights, colours = _adaptive_layout(h, w)
-    var = np.pad(film.luminance_stats(n0)[1].reshape(h, w).astype(np.float32), 2)  # 0 outside the image
-    near = np.zeros((h, w), dtype=np.float32)
-    far = np.zeros((h, w), dtype=np.float32)
-    for a, b in ADAPTIVE_NEIGHBOURS:
-        if abs(a) + abs(b) == 1:
-            near += var[2 + a:2 + a + h, 2 + b:2 + b + w]
-        else:
-            far += var[2 + a:2 + a + h, 2 + b:2 + b + w]
-    nb = np.sqrt((ADAPTIVE_NEAR_WEIGHT * near + far).reshape(-1).astype(np.float64) / weights)
+    y, var = film.luminance_stats(n0)
+    if n0 >= 2:
+        nb = np.sqrt(_neighbour_sum(var, h, w) / weights)
+    else:
+        mean = _neighbour_sum(y, h, w) / weights
+        nb = np.sqrt(np.maximum(_neighbour_sum(y * y, h, w) / weights - mean * mean, 0.0))
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
-    counts = np.full(h * w, float(spp))
+    counts = np.full(h * w, spp, dtype=np.int32)
     for mine in colours:
         total = float(nb[mine].sum())
         if total > 0.0 and math.isfinite(total):
-            counts[mine] = np.rint(n_min + float(spp - n_min) * mine.size * nb[mine] / total)
-    return np.clip(counts, n_min, ADAPTIVE_MAX_FACTOR * spp).astype(np.int32)
+            share = np.minimum(n_min + float(spp - n_min) * mine.size * nb[mine] / total, ADAPTIVE_MAX_FACTOR * spp)
+            counts[mine] = _round_keeping_sum(share)
+    return counts
+
+
+def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
+    """Integers within 1 of x (>= 0) whose sum is round(Σ x): the floors, plus one for the largest
+    fractional parts (ties to the lower index), so that a small budget keeps its mean."""
+    base = np.floor(x)
+    extra = int(round(float(x.sum()) - float(base.sum())))
+    if extra > 0:
+        base[np.argsort(base - x, kind="stable")[:extra]] += 1.0
+    return base.astype(np.int32)
+
+
+def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Σ over ADAPTIVE_NEIGHBOURS of weight × v (flat per-pixel values; 0 outside the image)."""
+    pad = np.pad(v.reshape(h, w), 2)
+    near = np.zeros((h, w))
+    far = np.zeros((h, w))
+    for a, b in ADAPTIVE_NEIGHBOURS:
+        if abs(a) + abs(b) == 1:
+            near += pad[2 + a:2 + a + h, 2 + b:2 + b + w]
+        else:
+            far += pad[2 + a:2 + a + h, 2 + b:2 + b + w]
+    return (ADAPTIVE_NEAR_WEIGHT * near + far).reshape(-1)
 
 
 @functools.lru_cache(maxsize=8)

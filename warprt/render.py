@@ -83,8 +83,8 @@ def default_workers() -> int:
 
 
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
-ADAPTIVE_MIN_SPP = 4  # below this budget adaptive sampling renders uniformly (a pilot of one sample has no spread)
-ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel (at least 2)
+ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
+ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
 SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
 
 
@@ -332,7 +332,7 @@ class Renderer:
         proportion to it (every pixel at least spp/2, at most 8 × spp). A pixel's count comes from
         its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps every
         sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean count.
-        Below 4 spp it renders uniformly; it does not combine with ``time_budget`` or
+        At 1 spp it renders uniformly; it does not combine with ``time_budget`` or
         ``target_error``."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
@@ -385,7 +385,7 @@ class Renderer:
                 if adaptive and spp >= ADAPTIVE_MIN_SPP:
                     # the pilot: the first n0 samples of every pixel, which then decide the other
                     # pixels' counts (never their own, see film.adaptive_counts) and stay in the image
-                    n0 = max(2, int(spp) // ADAPTIVE_PILOT_FRACTION)
+                    n0 = max(1, int(spp) // ADAPTIVE_PILOT_FRACTION)  # 2 spp: one sample, then counts
                     done, interrupted, _ = self._passes(film, params, 0, n0, ctrl_c, bar, None, None, **run)
                     if not interrupted:
                         counts = adaptive_counts(film, done, int(spp))
