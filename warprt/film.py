@@ -208,10 +208,6 @@ def _adaptive_layout(h: int, w: int) -> tuple[np.ndarray, tuple[np.ndarray, np.n
     """For an h × w film: each pixel's summed neighbour weights (fewer neighbours at the border;
     at least 1, so that a pixel with none gets deviation 0) and the flat indices of the two
     checkerboard colours."""
-    inside = np.pad(np.ones((h, w)), 2)
-    weights = np.zeros((h, w))
-    for a, b in ADAPTIVE_NEIGHBOURS:
-        wt = ADAPTIVE_NEAR_WEIGHT if abs(a) + abs(b) == 1 else 1.0
-        weights += wt * inside[2 + a:2 + a + h, 2 + b:2 + b + w]
+    weights = np.maximum(_neighbour_sum(np.ones(h * w), h, w), 1.0)
     colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
-    return np.maximum(weights.reshape(-1), 1.0), (np.flatnonzero(colour == 0), np.flatnonzero(colour == 1))
+    return weights, (np.flatnonzero(colour == 0), np.flatnonzero(colour == 1))

@@ -443,8 +443,8 @@ class Renderer:
         timing = (workers, n_slices)
         t_start = _time.perf_counter()
         while done < spp:
-            if pass_spp is not None and done > 0:
-                size = pass_spp
+            if pass_spp is not None:
+                size = 1 if done == 0 else pass_spp
             elif done > start or self._sample_time.get(timing, 0.0) > 0.0:
                 # about half a second of work (or what is left of the time budget) at the time per
                 # sample of every pixel measured so far, in this call or an earlier one
