@@ -164,7 +164,7 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     colour's samples."""
     h, w = film.height, film.width
     weights, colours = _adaptive_layout(h, w)
-    y, var = film.luminance_stats(n0)
+    y, var = _pilot_stats(film, n0)
     if n0 >= 2:
         nb = np.sqrt(_neighbour_sum(var, h, w) / weights)
     else:
@@ -173,11 +173,27 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
     counts = np.full(h * w, spp, dtype=np.int32)
     for mine in colours:
-        total = float(nb[mine].sum())
+        dev = nb[mine].astype(np.float64)  # the shares in float64: the budget must add up exactly
+        total = float(dev.sum())
         if total > 0.0 and math.isfinite(total):
-            share = np.minimum(n_min + float(spp - n_min) * mine.size * nb[mine] / total, ADAPTIVE_MAX_FACTOR * spp)
+            share = np.minimum(n_min + float(spp - n_min) * mine.size * dev / total, ADAPTIVE_MAX_FACTOR * spp)
             counts[mine] = _round_keeping_sum(share)
     return counts
+
+
+_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+
+def _pilot_stats(film: Film, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``Film.luminance_stats`` in float32 (the sums it reads are float32 already), computed in
+    place: it runs between the pilot and the main passes, while every worker waits."""
+    y = film.data.accum.numpy() @ _LUMA
+    y *= np.float32(1.0 / n)
+    var = film.data.accum_sq.numpy() * np.float32(1.0 / n)
+    var -= y * y
+    np.maximum(var, np.float32(0.0), out=var)
+    var *= np.float32(n / max(n - 1, 1))
+    return y, var
 
 
 def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
@@ -186,15 +202,22 @@ def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     base = np.floor(x)
     extra = int(round(float(x.sum()) - float(base.sum())))
     if extra > 0:
-        base[np.argsort(base - x, kind="stable")[:extra]] += 1.0
+        # the extra largest fractional parts in linear time (a partition, not a sort): those
+        # above the extra-th largest, then the ties with it, lowest index first
+        frac = base - x
+        kth = np.partition(frac, extra - 1)[extra - 1]
+        above = frac < kth
+        ties = np.flatnonzero(frac == kth)[:extra - int(np.count_nonzero(above))]
+        base[above] += 1.0
+        base[ties] += 1.0
     return base.astype(np.int32)
 
 
 def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:
     """Σ over ADAPTIVE_NEIGHBOURS of weight × v (flat per-pixel values; 0 outside the image)."""
     pad = np.pad(v.reshape(h, w), 2)
-    near = np.zeros((h, w))
-    far = np.zeros((h, w))
+    near = np.zeros((h, w), dtype=v.dtype)
+    far = np.zeros((h, w), dtype=v.dtype)
     for a, b in ADAPTIVE_NEIGHBOURS:
         if abs(a) + abs(b) == 1:
             near += pad[2 + a:2 + a + h, 2 + b:2 + b + w]
@@ -208,6 +231,6 @@ def _adaptive_layout(h: int, w: int) -> tuple[np.ndarray, tuple[np.ndarray, np.n
     """For an h × w film: each pixel's summed neighbour weights (fewer neighbours at the border;
     at least 1, so that a pixel with none gets deviation 0) and the flat indices of the two
     checkerboard colours."""
-    weights = np.maximum(_neighbour_sum(np.ones(h * w), h, w), 1.0)
+    weights = np.maximum(_neighbour_sum(np.ones(h * w, dtype=np.float32), h, w), np.float32(1.0))
     colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
     return weights, (np.flatnonzero(colour == 0), np.flatnonzero(colour == 1))
