@@ -111,6 +111,40 @@ def assert_same_as_the_loops(scene, with_bvh, device, monkeypatch):
     np.testing.assert_array_equal(ha["t"], hb["t"])
 
 
+def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, monkeypatch):
+    """With the analytic BVH, up to ``trace.PACKET`` camera rays of a pixel go through it
+    together (``trace_packet``); without it each goes alone through the loops. Full packets,
+    a partial one (11 spp), per-pixel counts (adaptive), rays with their own lens origins and
+    times (moving spheres), every bounded kind, and exact ties (two coincident rectangles, the
+    lower row wins): the images equal the loops' bit for bit."""
+    from warprt.trace import PACKET
+
+    rng = np.random.default_rng(5)
+    centers = rng.uniform(-1.5, 1.5, (24, 3))
+    shapes = tuple(warprt.Sphere(center=tuple(c), radius=float(r), material="ball",
+                                 center_end=tuple(c + (0.3, 0.0, 0.0)) if k % 3 == 0 else None)
+                   for k, (c, r) in enumerate(zip(centers, rng.uniform(0.05, 0.3, 24))))
+    tie = dict(corner=(-1.0, -0.9, -1.5), edge1=(2.0, 0.2, 0.0), edge2=(0.0, 0.3, 1.0))
+    shapes += (warprt.Rectangle(**tie, material="ball"), warprt.Rectangle(**tie, material="floor"))
+    shapes += tuple(warprt.Rectangle(corner=tuple(rng.uniform(-1.5, 1.5, 3)), edge1=tuple(rng.normal(0, 0.4, 3)),
+                                     edge2=tuple(rng.normal(0, 0.4, 3)), material="ball") for _ in range(6))
+    shapes += tuple(warprt.Disk(center=tuple(rng.uniform(-1.5, 1.5, 3)), normal=tuple(rng.normal(0, 1, 3)),
+                                radius=float(rng.uniform(0.1, 0.4)), material="floor") for _ in range(4))
+    shapes += (warprt.Box(center=(0.8, -1.2, 0.5), size=(0.5, 0.4, 0.6), material="floor"),
+               warprt.Plane(point=(0, -2, 0), material="floor"))
+    scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=24, height=18,
+                                                       aperture=0.08, focus_distance=6.0))
+    packets = warprt.Renderer(scene, device=device)
+    assert packets.built.analytic_bvh is not None and packets.features.motion and packets.features.lens
+    monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
+    loops = warprt.Renderer(scene, device=device)
+    assert loops.built.analytic_bvh is None
+    for spp, adaptive in ((PACKET, False), (11, False), (8, True)):
+        a = packets.render(spp=spp, seed=3, progress=False, adaptive=adaptive).image
+        b = loops.render(spp=spp, seed=3, progress=False, adaptive=adaptive).image
+        assert a.tobytes() == b.tobytes(), (spp, adaptive)
+
+
 def test_long_rectangles_boxed_in_pieces_find_the_same_hits_and_shadows(device, monkeypatch):
     """Long thin opaque bars tilted off the axes go into the BVH as pieces
     (``shapes.rect_pieces``); a transparent bar stays whole, so its shadow counts one crossing.

@@ -34,7 +34,7 @@ from .lights import make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
-from .trace import make_trace
+from .trace import PACKET, CameraPacket, Hit, make_trace
 
 STACK_SIZE = 16
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2  # dimension keys of the camera sample
@@ -64,6 +64,8 @@ def kernels_for(F: Features) -> SimpleNamespace:
     trace = make_trace(F)
     lights = make_lights(F)
     closest_hit = trace.closest_hit
+    trace_packet = trace.trace_packet
+    finish_hit = trace.finish_hit
     stack_size = STACK_SIZE if F.secondary else 1  # only the camera ray without secondary rays
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
@@ -88,138 +90,168 @@ def kernels_for(F: Features) -> SimpleNamespace:
             dropped = film.overflow[pixel]
         stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
-        for s in range(s0, s_end):
-            # --- camera sample: film, lens, time
-            uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
-            time = cam.t_open
-            if wp.static(F.motion):
-                if params.moving != 0 and cam.t_close > cam.t_open:
-                    ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
-                    time = cam.t_open + (cam.t_close - cam.t_open) * ut
-            ul = wp.vec2(0.5, 0.5)
-            if wp.static(F.lens):
-                if cam.lens_radius > 0.0:
-                    ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
-            ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
+        # with a BVH over the analytic shapes, the camera rays of up to PACKET samples go through
+        # it together (trace_packet: the same hits as one by one, fewer node visits per ray)
+        packed = scene.bvh_root >= 0
+        base = s0
+        while base < s_end:
+            lanes = wp.min(PACKET, s_end - base)
+            pk = CameraPacket()
+            for k in range(lanes):
+                s = base + k
+                # --- camera sample: film, lens, time
+                uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
+                time = cam.t_open
+                if wp.static(F.motion):
+                    if params.moving != 0 and cam.t_close > cam.t_open:
+                        ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
+                        time = cam.t_open + (cam.t_close - cam.t_open) * ut
+                ul = wp.vec2(0.5, 0.5)
+                if wp.static(F.lens):
+                    if cam.lens_radius > 0.0:
+                        ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
+                ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
+                pk.ox[k] = ray.o[0]
+                pk.oy[k] = ray.o[1]
+                pk.oz[k] = ray.o[2]
+                pk.dx[k] = ray.d[0]
+                pk.dy[k] = ray.d[1]
+                pk.dz[k] = ray.d[2]
+                pk.time[k] = time
+                pk.best[k] = params.t_max
+                pk.kind[k] = KIND_NONE
+                pk.index[k] = -1
+            for k in range(lanes, PACKET):
+                pk.best[k] = -1.0  # an unused lane: no box is entered for it
+            if packed:
+                pk = trace_packet(scene, pk, params.t_min, lanes)
+            for k in range(lanes):
+                s = base + k
+                time = pk.time[k]
+                L = wp.vec3(0.0, 0.0, 0.0)
+                first = RayEntry()
+                first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                first.w = wp.vec3(1.0, 1.0, 1.0)
+                first.depth = 0
+                first.key = wp.uint32(ROOT_KEY)
+                stack[0] = first
+                sp = int(1)
+                while sp > 0:
+                    sp -= 1
+                    e = stack[sp]
+                    rays += 1
+                    t_lo = float(0.0)
+                    t_hi = float(3.0e38)
+                    if e.depth == 0:
+                        t_lo = params.t_min
+                        t_hi = params.t_max
+                    h = Hit()
+                    if e.depth == 0 and packed:
+                        # the packet found this camera ray's nearest analytic hit
+                        h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
+                    else:
+                        h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
+                    if h.kind == KIND_NONE:
+                        L += mul_sat(e.w, scene.background)
+                        continue
+                    front = wp.dot(e.d, h.ng) < 0.0
+                    ng = h.ng
+                    n = h.ns
+                    if not front:
+                        ng = -ng
+                        n = -n
+                    if wp.dot(n, e.d) > 0.0:
+                        n = ng  # a shading normal facing away from the viewer: fall back
+                    le = scene.mats[h.mat].emit
+                    if wp.max(le) > 0.0:
+                        if front:
+                            L += mul_sat(e.w, le)
+                        continue
+                    v = -e.d
+                    local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
+                    origin = spawn_origin(h.p, ng, h.mag, 1.0)  # shadow rays leave from here
+                    dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, time)
+                    rays += int(dl[3])
+                    local += wp.vec3(dl[0], dl[1], dl[2])
+                    if wp.static(F.area_lights):
+                        # a separate call: a scene without area lights keeps the point-light code
+                        # small enough for the C++ compiler to inline (docs/architecture.md,
+                        # "Features and compile cost")
+                        if scene.n_alights > 0:
+                            al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
+                                                    scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
+                            rays += int(al[3])
+                            local += wp.vec3(al[0], al[1], al[2])
+                    L += mul_sat(e.w, local)
 
-            L = wp.vec3(0.0, 0.0, 0.0)
-            first = RayEntry()
-            first.o = ray.o
-            first.d = ray.d
-            first.w = wp.vec3(1.0, 1.0, 1.0)
-            first.depth = 0
-            first.key = wp.uint32(ROOT_KEY)
-            stack[0] = first
-            sp = int(1)
-            while sp > 0:
-                sp -= 1
-                e = stack[sp]
-                rays += 1
-                t_lo = float(0.0)
-                t_hi = float(3.0e38)
-                if e.depth == 0:
-                    t_lo = params.t_min
-                    t_hi = params.t_max
-                h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
-                if h.kind == KIND_NONE:
-                    L += mul_sat(e.w, scene.background)
-                    continue
-                front = wp.dot(e.d, h.ng) < 0.0
-                ng = h.ng
-                n = h.ns
-                if not front:
-                    ng = -ng
-                    n = -n
-                if wp.dot(n, e.d) > 0.0:
-                    n = ng  # a shading normal facing away from the viewer: fall back
-                le = scene.mats[h.mat].emit
-                if wp.max(le) > 0.0:
-                    if front:
-                        L += mul_sat(e.w, le)
-                    continue
-                v = -e.d
-                local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
-                origin = spawn_origin(h.p, ng, h.mag, 1.0)  # shadow rays leave from here
-                dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, time)
-                rays += int(dl[3])
-                local += wp.vec3(dl[0], dl[1], dl[2])
-                if wp.static(F.area_lights):
-                    # a separate call: a scene without area lights keeps the point-light code
-                    # small enough for the C++ compiler to inline (docs/architecture.md,
-                    # "Features and compile cost")
-                    if scene.n_alights > 0:
-                        al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
-                                                scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
-                        rays += int(al[3])
-                        local += wp.vec3(al[0], al[1], al[2])
-                L += mul_sat(e.w, local)
-
-                if wp.static(F.secondary):
-                    if e.depth < params.max_depth:
-                        w_refl = scene.mats[h.mat].km
-                        if wp.static(F.refraction):
-                            kt = scene.mats[h.mat].kt
-                            if wp.max(kt) > 0.0:
-                                ior = scene.mats[h.mat].ior
-                                eta_i = float(1.0)
-                                eta_t = float(ior)
-                                if not front:
-                                    eta_i = ior
-                                    eta_t = 1.0
-                                tdir = refract(e.d, n, eta_i / eta_t)
-                                if wp.length(tdir) == 0.0:
-                                    w_refl = w_refl + kt  # total internal reflection
-                                else:
-                                    w_refr = kt
-                                    mode = scene.mats[h.mat].fresnel
-                                    if mode > 0:
-                                        fr = fresnel(mode, -wp.dot(e.d, n), eta_i, eta_t)
-                                        w_refl = w_refl + kt * fr
-                                        w_refr = kt * (1.0 - fr)
-                                    if wp.static(F.glossy):
-                                        frost = scene.mats[h.mat].frost
-                                        if frost > 0.0:
-                                            ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
-                                                           hash2(e.key, wp.uint32(KEY_FROSTED_REFRACT)))
-                                            tdir = lobe(ug, tdir, frost)
-                                    tw = mul_sat(e.w, w_refr)
-                                    if wp.dot(tdir, ng) < 0.0 and wp.max(tw) > params.min_weight:
-                                        if sp < STACK_SIZE:
-                                            child = RayEntry()
-                                            child.o = spawn_origin(h.p, ng, h.mag, -1.0)
-                                            child.d = tdir
-                                            child.w = tw
-                                            child.depth = e.depth + 1
-                                            child.key = hash2(e.key, wp.uint32(KEY_REFRACTED))
-                                            stack[sp] = child
-                                            sp += 1
-                                        else:
-                                            dropped += 1
-                        rw = mul_sat(e.w, w_refl)
-                        if wp.max(rw) > params.min_weight:
-                            r = reflect(e.d, n)
-                            if wp.static(F.glossy):
-                                gloss = scene.mats[h.mat].gloss
-                                if gloss > 0.0:
-                                    ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
-                                                   hash2(e.key, wp.uint32(KEY_GLOSSY_REFLECT)))
-                                    r = lobe(ug, r, gloss)
-                            if wp.dot(r, ng) > 0.0:
-                                if sp < STACK_SIZE:
-                                    child = RayEntry()
-                                    child.o = spawn_origin(h.p, ng, h.mag, 1.0)
-                                    child.d = r
-                                    child.w = rw
-                                    child.depth = e.depth + 1
-                                    child.key = hash2(e.key, wp.uint32(KEY_REFLECTED))
-                                    stack[sp] = child
-                                    sp += 1
-                                else:
-                                    dropped += 1
-            L = sanitize(L, params.clamp)
-            acc = acc + L
-            y = luminance(L)
-            acc_sq = acc_sq + y * y
+                    if wp.static(F.secondary):
+                        if e.depth < params.max_depth:
+                            w_refl = scene.mats[h.mat].km
+                            if wp.static(F.refraction):
+                                kt = scene.mats[h.mat].kt
+                                if wp.max(kt) > 0.0:
+                                    ior = scene.mats[h.mat].ior
+                                    eta_i = float(1.0)
+                                    eta_t = float(ior)
+                                    if not front:
+                                        eta_i = ior
+                                        eta_t = 1.0
+                                    tdir = refract(e.d, n, eta_i / eta_t)
+                                    if wp.length(tdir) == 0.0:
+                                        w_refl = w_refl + kt  # total internal reflection
+                                    else:
+                                        w_refr = kt
+                                        mode = scene.mats[h.mat].fresnel
+                                        if mode > 0:
+                                            fr = fresnel(mode, -wp.dot(e.d, n), eta_i, eta_t)
+                                            w_refl = w_refl + kt * fr
+                                            w_refr = kt * (1.0 - fr)
+                                        if wp.static(F.glossy):
+                                            frost = scene.mats[h.mat].frost
+                                            if frost > 0.0:
+                                                ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
+                                                               hash2(e.key, wp.uint32(KEY_FROSTED_REFRACT)))
+                                                tdir = lobe(ug, tdir, frost)
+                                        tw = mul_sat(e.w, w_refr)
+                                        if wp.dot(tdir, ng) < 0.0 and wp.max(tw) > params.min_weight:
+                                            if sp < STACK_SIZE:
+                                                child = RayEntry()
+                                                child.o = spawn_origin(h.p, ng, h.mag, -1.0)
+                                                child.d = tdir
+                                                child.w = tw
+                                                child.depth = e.depth + 1
+                                                child.key = hash2(e.key, wp.uint32(KEY_REFRACTED))
+                                                stack[sp] = child
+                                                sp += 1
+                                            else:
+                                                dropped += 1
+                            rw = mul_sat(e.w, w_refl)
+                            if wp.max(rw) > params.min_weight:
+                                r = reflect(e.d, n)
+                                if wp.static(F.glossy):
+                                    gloss = scene.mats[h.mat].gloss
+                                    if gloss > 0.0:
+                                        ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
+                                                       hash2(e.key, wp.uint32(KEY_GLOSSY_REFLECT)))
+                                        r = lobe(ug, r, gloss)
+                                if wp.dot(r, ng) > 0.0:
+                                    if sp < STACK_SIZE:
+                                        child = RayEntry()
+                                        child.o = spawn_origin(h.p, ng, h.mag, 1.0)
+                                        child.d = r
+                                        child.w = rw
+                                        child.depth = e.depth + 1
+                                        child.key = hash2(e.key, wp.uint32(KEY_REFLECTED))
+                                        stack[sp] = child
+                                        sp += 1
+                                    else:
+                                        dropped += 1
+                L = sanitize(L, params.clamp)
+                acc = acc + L
+                y = luminance(L)
+                acc_sq = acc_sq + y * y
+            base += lanes
         film.accum[pixel] = acc
         film.accum_sq[pixel] = acc_sq
         film.rays[pixel] = rays

@@ -34,6 +34,29 @@ from .records import (
 
 TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
+PACKET = 8  # camera rays of one pixel traced together through the analytic BVH (trace_packet)
+PACKET_MISS = 3.0e38  # a child's entry distance when no lane meets it
+PacketF = wp.types.vector(length=PACKET, dtype=wp.float32)
+PacketI = wp.types.vector(length=PACKET, dtype=wp.int32)
+
+
+@wp.struct
+class CameraPacket:
+    """Up to PACKET camera rays of one pixel (origins, unit directions, times) and, per ray, the
+    nearest analytic hit so far: its t (the ray's t_max before any; below 0 for an unused lane),
+    kind and row."""
+
+    ox: PacketF
+    oy: PacketF
+    oz: PacketF
+    dx: PacketF
+    dy: PacketF
+    dz: PacketF
+    time: PacketF
+    best: PacketF
+    kind: PacketI
+    index: PacketI
+
 
 @wp.struct
 class Hit:
@@ -509,15 +532,105 @@ def make_trace(F: Features) -> SimpleNamespace:
         h.mat = scene.insts[index].mat
         return h
 
+    @wp.func
+    def trace_packet(scene: SceneData, pk_in: CameraPacket, t_min: float, lanes: int) -> CameraPacket:
+        """The nearest analytic hit (planes, then the BVH over the bounded shapes) of each of the
+        first ``lanes`` rays of a packet, as ``closest_hit`` finds it for each ray alone: the
+        same tests with the same bounds, so the same hit, bit for bit. The packet goes through
+        the BVH together: a node is opened while any lane's ray meets its box before that lane's
+        nearest hit, children nearest first by the least entry over the lanes, so the rays of
+        one pixel share each node's load and the per-lane box tests (a fixed-length loop the
+        C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0."""
+        pk = pk_in
+        inv_x = PacketF()
+        inv_y = PacketF()
+        inv_z = PacketF()
+        for k in range(lanes):
+            o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+            d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+            inv = safe_inverse(d)
+            inv_x[k] = inv[0]
+            inv_y[k] = inv[1]
+            inv_z[k] = inv[2]
+            best = pk.best[k]
+            for i in range(scene.n_planes):
+                t = intersect_plane(o, d, scene.planes[i].p, scene.planes[i].n, t_min, best)
+                if t >= 0.0:
+                    best = t
+                    pk.kind[k] = KIND_PLANE
+                    pk.index[k] = i
+            pk.best[k] = best
+        far_all = float(0.0)  # the farthest any lane still searches
+        for k in range(PACKET):
+            far_all = wp.max(far_all, pk.best[k])
+        refs = StackRefs()
+        entry = StackDist()
+        refs[0] = scene.bvh_root
+        sp = int(1)
+        while sp > 0:
+            sp -= 1
+            if entry[sp] > far_all:
+                continue
+            ref = refs[sp]
+            if ref >= 0:
+                nd = scene.bvh_nodes[ref]
+                e0 = float(PACKET_MISS)
+                e1 = float(PACKET_MISS)
+                for k in range(PACKET):
+                    o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                    inv = wp.vec3(inv_x[k], inv_y[k], inv_z[k])
+                    s0 = slab(o, inv, nd.lo0, nd.hi0)
+                    s1 = slab(o, inv, nd.lo1, nd.hi1)
+                    # the scalar traversal's test, lane by lane (an inactive lane's best < 0 fails it)
+                    h0 = s0[0] <= s0[1] and s0[1] >= 0.0 and s0[0] <= pk.best[k]
+                    h1 = s1[0] <= s1[1] and s1[1] >= 0.0 and s1[0] <= pk.best[k]
+                    e0 = wp.where(h0, wp.min(e0, s0[0]), e0)
+                    e1 = wp.where(h1, wp.min(e1, s1[0]), e1)
+                near = nd.c0
+                far = nd.c1
+                t_near = e0
+                t_far = e1
+                if e1 < e0:
+                    near = nd.c1
+                    far = nd.c0
+                    t_near = e1
+                    t_far = e0
+                if t_far < PACKET_MISS:
+                    refs[sp] = far
+                    entry[sp] = t_far
+                    sp += 1
+                if t_near < PACKET_MISS:
+                    refs[sp] = near
+                    entry[sp] = t_near
+                    sp += 1
+                continue
+            j = -ref - 1
+            kk = scene.bvh_prims[j][0]
+            ii = scene.bvh_prims[j][1]
+            far_all = float(0.0)
+            for k in range(lanes):
+                lane_best = pk.best[k]
+                kind = pk.kind[k]
+                # the tie rule of closest_hit's leaves
+                first = kind != KIND_NONE and (kk < kind or (kk == kind and ii < pk.index[k]))
+                t_hi = lane_best
+                if first:
+                    t_hi = lane_best * 1.0000002 + 1.0e-38
+                t = bounded_hit(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]), wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]),
+                                t_min, t_hi, pk.time[k], kk, ii)
+                if t >= 0.0 and (t < lane_best or (first and t == lane_best)):
+                    pk.best[k] = t
+                    pk.kind[k] = kk
+                    pk.index[k] = ii
+                far_all = wp.max(far_all, pk.best[k])
+        return pk
+
     @wp.func(inline=True)
     def closest_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> Hit:
         """The nearest surface along (o, d) (unit d) in (t_min, t_max), refined onto its surface."""
         best = float(t_max)
         kind = int(KIND_NONE)
         index = int(-1)
-        face = int(-1)
-        bu = float(0.0)
-        bv = float(0.0)
         # kinds in the order spheres, planes, rectangles, disks; a hit replaces another only when
         # strictly nearer. Many bounded shapes: planes first, then one BVH over the rest
         use_bvh = scene.bvh_root >= 0
@@ -616,6 +729,20 @@ def make_trace(F: Features) -> SimpleNamespace:
                             best = t
                             kind = k
                             index = i
+        return finish_hit(scene, o, d, t_min, time, best, kind, index)
+
+    @wp.func(inline=True)
+    def finish_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, time: float, best_analytic: float,
+                   kind_analytic: int, index_analytic: int) -> Hit:
+        """``closest_hit`` from the nearest analytic hit on: the mesh instances (bounded by that
+        hit), then the hit refined onto its surface. ``kind_analytic`` is KIND_NONE (and
+        ``best_analytic`` the ray's t_max) where no analytic shape was hit."""
+        best = best_analytic
+        kind = kind_analytic
+        index = index_analytic
+        face = int(-1)
+        bu = float(0.0)
+        bv = float(0.0)
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
@@ -799,6 +926,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             return wp.vec3(1.0, 1.0, 1.0)
         return transmittance(scene, origin, to_t / dist, dist - stop_short, time)
 
-    return SimpleNamespace(closest_hit=closest_hit, transmittance=transmittance, shadow=shadow,
+    return SimpleNamespace(closest_hit=closest_hit, trace_packet=trace_packet, finish_hit=finish_hit,
+                           transmittance=transmittance, shadow=shadow,
                            sphere_center=sphere_center, instance_pose=instance_pose, solid_pose=solid_pose,
                            solid_rec=solid_rec)

@@ -455,6 +455,14 @@ def test_a_tie_the_bvh_reaches_second_still_goes_to_the_first_listed():
     alone = image(scene.replace(shapes=(small,))).max(axis=-1) > 0
     assert alone.sum() > 400 and b.sum() > 50
     np.testing.assert_array_equal(a, alone)
+    # the same for rays one by one (the ray queries; secondary rays take the same path), where
+    # the render's camera rays went through the BVH in packets
+    both = scene.replace(shapes=(small, large))
+    o, d = warprt.camera_rays(both)
+    got = warprt.trace_rays(warprt.Renderer(both, device="cpu"), o, d)["shape"]
+    on_small = warprt.trace_rays(warprt.Renderer(scene.replace(shapes=(small,)), device="cpu"), o, d)["shape"] == 0
+    assert on_small.sum() > 400 and (got == 1).sum() > 50
+    np.testing.assert_array_equal(got[on_small], 0)
 
 
 @pytest.mark.parametrize("first, second, winner", [
