@@ -43,6 +43,8 @@ def test_plain_scene_needs_no_optional_feature():
     (dict(camera=warprt.Camera(eye_end=(1, 0, 5))), "motion"),
     (dict(shapes=(warprt.Sphere(center_end=(1, 0, 0)),)), "motion"),
     (dict(shapes=(warprt.Mesh(vertices=[[0, 0, 0], [1, 0, 0], [0, 1, 0]], faces=[[0, 1, 2]]),)), "meshes"),
+    (dict(shapes=(warprt.Sphere(), warprt.Disk(center=(2, 0, 0)))), "analytic_bvh"),
+    (dict(shapes=(warprt.Plane(), warprt.Rectangle()), lights=(warprt.RectLight(),)), "analytic_bvh"),
 ])
 def test_each_feature_is_detected(change, flag):
     assert getattr(features_of(_scene(**change)), flag)
@@ -135,7 +137,8 @@ def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, 
     scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=24, height=18,
                                                        aperture=0.08, focus_distance=6.0))
     packets = warprt.Renderer(scene, device=device)
-    assert packets.built.analytic_bvh is not None and packets.features.motion and packets.features.lens
+    assert packets.built.analytic_bvh is not None and packets.features.analytic_bvh
+    assert packets.features.motion and packets.features.lens
     monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
     loops = warprt.Renderer(scene, device=device)
     assert loops.built.analytic_bvh is None

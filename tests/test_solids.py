@@ -366,7 +366,7 @@ radius = 0.3
 transform_end = { translate = [0, 0.5, 0] }
 """)
     assert [type(s).__name__ for s in scene.shapes] == ["Box", "Capsule", "Cylinder"]
-    assert features_of(scene) == warprt.Features(solids=True, motion=True)
+    assert features_of(scene) == warprt.Features(solids=True, motion=True, analytic_bvh=True)  # 3 bounded shapes
     for bad, field in ((dict(size=(1, 0, 1)), "size[1]"), (dict(size=(1, 1)), "size")):
         with pytest.raises(SceneError) as e:
             warprt.Box(**bad)

@@ -26,6 +26,7 @@ from .records import (
     FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
     features_of, table,
 )
+from .records import ANALYTIC_BVH_MIN as RECORDS_ANALYTIC_BVH_MIN
 from .sampling import SAMPLER_IDS
 from .scene.description import (
     AUTO_SAMPLES, EXTENT_WARNING, LIGHT_SAMPLING, DirectionalLight, Material, Mesh, PointLight, Scene, is_area_light,
@@ -39,8 +40,8 @@ from .trace import instance_box_kernel
 # A BVH beats the loop (a box test per shape) from two on (measured with Warp's wp.Bvh): 512²
 # renders, 1 worker, CPU s, min of 11 interleaved: a plane + 2 spheres 126 -> 115 ns a pixel,
 # + 4 boxes 271 -> 205, + 4 boxes, 2 spheres and a capsule 332 -> 231; 64 worlds of the last in a
-# batch 218 -> 159
-ANALYTIC_BVH_MIN = 2
+# batch 218 -> 159 (records.ANALYTIC_BVH_MIN: features_of decides the kernel's packet code on it too)
+ANALYTIC_BVH_MIN = RECORDS_ANALYTIC_BVH_MIN
 
 
 class DeviceScene:

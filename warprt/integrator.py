@@ -34,13 +34,20 @@ from .lights import make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
-from .trace import PACKET, CameraPacket, Hit, make_trace
+from .trace import PACKET, PACKET_MIN, CameraPacket, Hit, make_trace
 
 STACK_SIZE = 16
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2  # dimension keys of the camera sample
 ROOT_KEY = 0x51ED270B  # dimension key of the camera ray's path vertex
 KEY_GLOSSY_REFLECT, KEY_FROSTED_REFRACT = 1, 2  # lobe samples at a vertex: hash2(vertex key, ...)
 KEY_REFRACTED, KEY_REFLECTED = 101, 102  # child vertices: hash2(vertex key, ...)
+
+
+@wp.struct
+class CameraSample:
+    o: wp.vec3
+    d: wp.vec3
+    time: float
 
 
 @wp.struct
@@ -71,6 +78,27 @@ def kernels_for(F: Features) -> SimpleNamespace:
     area_lights_direct = lights.area_lights_direct
 
     @wp.func(inline=True)
+    def camera_sample(cam: CameraData, params: RenderParams, pkey: wp.uint32, s: int, px: int, py: int) -> CameraSample:
+        """Sample s's camera ray of raster pixel (px, py): film position, lens position and time
+        from the sampler (dimensions DIM_FILM, DIM_LENS, DIM_TIME)."""
+        uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
+        time = cam.t_open
+        if wp.static(F.motion):
+            if params.moving != 0 and cam.t_close > cam.t_open:
+                ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
+                time = cam.t_open + (cam.t_close - cam.t_open) * ut
+        ul = wp.vec2(0.5, 0.5)
+        if wp.static(F.lens):
+            if cam.lens_radius > 0.0:
+                ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
+        ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
+        cs = CameraSample()
+        cs.o = ray.o
+        cs.d = ray.d
+        cs.time = time
+        return cs
+
+    @wp.func(inline=True)
     def render_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
                      s0: int, s1: int, film: FilmData):
         """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``
@@ -90,48 +118,47 @@ def kernels_for(F: Features) -> SimpleNamespace:
             dropped = film.overflow[pixel]
         stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
-        # with a BVH over the analytic shapes, the camera rays of up to PACKET samples go through
-        # it together (trace_packet: the same hits as one by one, fewer node visits per ray)
-        packed = scene.bvh_root >= 0
+        # with a BVH over the analytic shapes, the camera rays of PACKET_MIN to PACKET samples go
+        # through it together (trace_packet: the same hits as one by one, fewer node visits per ray)
+        bvh = scene.bvh_root >= 0
         base = s0
         while base < s_end:
-            lanes = wp.min(PACKET, s_end - base)
+            lanes = int(1)  # without F.analytic_bvh: one sample at a time, as ever
+            packed = False
             pk = CameraPacket()
+            if wp.static(F.analytic_bvh):
+                lanes = wp.min(PACKET, s_end - base)
+                packed = bvh and lanes >= PACKET_MIN
+                for k in range(lanes):
+                    cs = camera_sample(cam, params, pkey, base + k, px, py)
+                    pk.ox[k] = cs.o[0]
+                    pk.oy[k] = cs.o[1]
+                    pk.oz[k] = cs.o[2]
+                    pk.dx[k] = cs.d[0]
+                    pk.dy[k] = cs.d[1]
+                    pk.dz[k] = cs.d[2]
+                    pk.time[k] = cs.time
+                    pk.best[k] = params.t_max
+                    pk.kind[k] = KIND_NONE
+                    pk.index[k] = -1
+                if packed:
+                    for k in range(lanes, PACKET):
+                        pk.best[k] = -1.0  # an unused lane: no box is entered for it
+                    pk = trace_packet(scene, pk, params.t_min, lanes)
             for k in range(lanes):
                 s = base + k
-                # --- camera sample: film, lens, time
-                uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
-                time = cam.t_open
-                if wp.static(F.motion):
-                    if params.moving != 0 and cam.t_close > cam.t_open:
-                        ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
-                        time = cam.t_open + (cam.t_close - cam.t_open) * ut
-                ul = wp.vec2(0.5, 0.5)
-                if wp.static(F.lens):
-                    if cam.lens_radius > 0.0:
-                        ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
-                ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
-                pk.ox[k] = ray.o[0]
-                pk.oy[k] = ray.o[1]
-                pk.oz[k] = ray.o[2]
-                pk.dx[k] = ray.d[0]
-                pk.dy[k] = ray.d[1]
-                pk.dz[k] = ray.d[2]
-                pk.time[k] = time
-                pk.best[k] = params.t_max
-                pk.kind[k] = KIND_NONE
-                pk.index[k] = -1
-            for k in range(lanes, PACKET):
-                pk.best[k] = -1.0  # an unused lane: no box is entered for it
-            if packed:
-                pk = trace_packet(scene, pk, params.t_min, lanes)
-            for k in range(lanes):
-                s = base + k
-                time = pk.time[k]
-                L = wp.vec3(0.0, 0.0, 0.0)
                 first = RayEntry()
-                first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                time = float(0.0)
+                if wp.static(F.analytic_bvh):
+                    time = pk.time[k]
+                    first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                    first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                else:
+                    cs = camera_sample(cam, params, pkey, s, px, py)
+                    time = cs.time
+                    first.o = cs.o
+                    first.d = cs.d
+                L = wp.vec3(0.0, 0.0, 0.0)
                 first.w = wp.vec3(1.0, 1.0, 1.0)
                 first.depth = 0
                 first.key = wp.uint32(ROOT_KEY)
@@ -147,9 +174,12 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         t_lo = params.t_min
                         t_hi = params.t_max
                     h = Hit()
-                    if e.depth == 0 and packed:
-                        # the packet found this camera ray's nearest analytic hit
-                        h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
+                    if wp.static(F.analytic_bvh):
+                        if e.depth == 0 and packed:
+                            # the packet found this camera ray's nearest analytic hit
+                            h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
+                        else:
+                            h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                     else:
                         h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                     if h.kind == KIND_NONE:

@@ -13,7 +13,7 @@ import numpy as np
 import warp as wp
 
 from .accel import BvhNode
-from .scene.description import SOLID_TYPES, Material, Mesh, Scene, Sphere, is_area_light
+from .scene.description import SOLID_TYPES, Disk, Material, Mesh, Rectangle, Scene, Sphere, is_area_light
 
 # shape kinds, as reported by ray queries and id AOVs, and as area lights name their surface
 KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 2, 3, 4
@@ -34,6 +34,7 @@ class Features:
     lens: bool = False  # thin-lens depth of field
     motion: bool = False  # moving objects or camera (motion blur)
     solids: bool = False  # analytic boxes, capsules and cylinders (intersected in their own frame)
+    analytic_bvh: bool = False  # a BVH over the bounded analytic shapes: camera rays through it in packets
 
     @classmethod
     def full(cls) -> "Features":
@@ -74,7 +75,19 @@ def features_of(scene: Scene) -> Features:
         lens=scene.camera.aperture > 0.0,
         motion=scene.camera.moves or any(_moves(s) for s in scene.shapes),
         solids=any(isinstance(s, SOLID_TYPES) for s in scene.shapes),
+        analytic_bvh=_bounded_analytic(scene) >= ANALYTIC_BVH_MIN,
     )
+
+
+ANALYTIC_BVH_MIN = 2  # from this many bounded analytic shapes on, one BVH over them (build.py)
+
+
+def _bounded_analytic(scene: Scene) -> int:
+    """How many bounded analytic shapes the scene has, its area lights' emitting surfaces among
+    them (at least as many as the builder's BVH takes: the feature only adds code, and the kernel
+    checks at run time whether the BVH exists)."""
+    return (sum(isinstance(s, (Sphere, Rectangle, Disk, *SOLID_TYPES)) for s in scene.shapes)
+            + sum(is_area_light(light) for light in scene.lights))
 
 
 def _moves(shape) -> bool:

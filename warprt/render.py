@@ -39,6 +39,7 @@ from .camera import camera_data
 from .errors import RenderError
 from .film import Film, adaptive_counts
 from .integrator import kernels_for
+from .trace import PACKET
 from .memory import check_memory
 from .records import Features
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
@@ -452,6 +453,10 @@ class Renderer:
                 target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
                 goal = work_at[done] + target / max(per, 1e-9)
                 size = max(1, int(np.searchsorted(work_at, goal, side="right")) - 1 - done)
+                # a pass short of the end takes whole packets of camera rays (the integrator takes
+                # a pixel's samples PACKET at a time from the pass's first on)
+                if done + size < spp and size > PACKET:
+                    size -= size % PACKET
             else:
                 size = 1  # the renderer's first pass: one sample, to time one
             size = min(size, spp - done)
