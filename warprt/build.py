@@ -23,10 +23,9 @@ from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
 from .records import (
-    FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
+    ANALYTIC_BVH_MIN, FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
     features_of, table,
 )
-from .records import ANALYTIC_BVH_MIN as RECORDS_ANALYTIC_BVH_MIN
 from .sampling import SAMPLER_IDS
 from .scene.description import (
     AUTO_SAMPLES, EXTENT_WARNING, LIGHT_SAMPLING, DirectionalLight, Material, Mesh, PointLight, Scene, is_area_light,
@@ -35,13 +34,6 @@ from .scene.description import (
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
 from .trace import instance_box_kernel
-
-# from this many bounded analytic shapes on (all but planes), rays find them through one BVH (accel).
-# A BVH beats the loop (a box test per shape) from two on (measured with Warp's wp.Bvh): 512²
-# renders, 1 worker, CPU s, min of 11 interleaved: a plane + 2 spheres 126 -> 115 ns a pixel,
-# + 4 boxes 271 -> 205, + 4 boxes, 2 spheres and a capsule 332 -> 231; 64 worlds of the last in a
-# batch 218 -> 159 (records.ANALYTIC_BVH_MIN: features_of decides the kernel's packet code on it too)
-ANALYTIC_BVH_MIN = RECORDS_ANALYTIC_BVH_MIN
 
 
 class DeviceScene:

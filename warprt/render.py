@@ -453,9 +453,9 @@ class Renderer:
                 target = 0.5 if time_budget is None else min(0.5, max(time_budget - elapsed, 0.0) + 1e-3)
                 goal = work_at[done] + target / max(per, 1e-9)
                 size = max(1, int(np.searchsorted(work_at, goal, side="right")) - 1 - done)
-                # a pass short of the end takes whole packets of camera rays (the integrator takes
-                # a pixel's samples PACKET at a time from the pass's first on)
-                if done + size < spp and size > PACKET:
+                # with camera-ray packets, a pass short of the end takes whole packets (the
+                # integrator takes a pixel's samples PACKET at a time from the pass's first on)
+                if self.features.analytic_bvh and done + size < spp and size > PACKET:
                     size -= size % PACKET
             else:
                 size = 1  # the renderer's first pass: one sample, to time one
