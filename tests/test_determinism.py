@@ -139,3 +139,48 @@ def test_deep_recursion_overflows_are_counted_and_pixels_stay_finite(device):
     # more bounces add light, but less than the whole tree would (some rays were dropped)
     assert np.all(deep.image > shallow.image)
     assert np.all(deep.image < hall_radiance(40) * (1 - 1e-4))
+
+
+def test_a_renderer_reusing_its_film_gives_what_a_new_renderer_gives(device):
+    """The renderer keeps its film between renders without clearing it (the first pass starts
+    every pixel's sums): whatever came before on the same renderer (an adaptive render with its
+    per-pixel caps, more samples, another resolution, a render in another thread holding the
+    film), each render equals a new renderer's, image and ray count, bit for bit."""
+    import dataclasses
+    import threading
+
+    scene = glass_scene("sobol")
+    small = dataclasses.replace(scene.camera, width=16, height=12)
+
+    def fresh(camera=None, **options):
+        s = scene if camera is None else scene.replace(camera=camera)
+        return warprt.Renderer(s, device=device).render(progress=False, **options)
+
+    r = warprt.Renderer(scene, device=device)
+    steps = [dict(spp=8, seed=1, adaptive=True), dict(spp=4, seed=2), dict(spp=2, seed=2, adaptive=True),
+             dict(spp=3, seed=5)]
+    for options in steps:
+        got, want = r.render(progress=False, **options), fresh(**options)
+        assert got.image.tobytes() == want.image.tobytes(), options
+        assert got.rays == want.rays and got.spp == want.spp, options
+    r.set_camera(small)
+    got, want = r.render(spp=4, seed=7, progress=False), fresh(small, spp=4, seed=7)
+    assert got.image.shape == (12, 16, 3) and got.image.tobytes() == want.image.tobytes()
+    r.set_camera(scene.camera)
+
+    # two threads rendering with one renderer at once: one of them takes a film of its own
+    results = {}
+    gate = threading.Barrier(2)
+
+    def run(seed):
+        gate.wait()
+        results[seed] = r.render(spp=6, seed=seed, workers=1, progress=False)
+
+    threads = [threading.Thread(target=run, args=(seed,)) for seed in (11, 12)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for seed in (11, 12):
+        want = fresh(spp=6, seed=seed)
+        assert results[seed].image.tobytes() == want.image.tobytes() and results[seed].rays == want.rays

@@ -77,16 +77,25 @@ def _image_kernels():
 class Film:
     """Accumulation buffers for a width × height image on one device."""
 
-    def __init__(self, width: int, height: int, device):
+    def __init__(self, width: int, height: int, device, zeroed: bool = True):
+        """``zeroed=False`` leaves the sums unset: for a film whose first pass covers every pixel
+        (the render kernel's first pass starts each pixel's sums rather than adding to them)."""
         self.width, self.height, self.device = width, height, device
         n = width * height
+        alloc = wp.zeros if zeroed else wp.empty
         self.data = FilmData()
-        self.data.accum = wp.zeros(n, dtype=wp.vec3, device=device)
-        self.data.accum_sq = wp.zeros(n, dtype=float, device=device)
-        self.data.rays = wp.zeros(n, dtype=int, device=device)
-        self.data.overflow = wp.zeros(n, dtype=int, device=device)
+        self.data.accum = alloc(n, dtype=wp.vec3, device=device)
+        self.data.accum_sq = alloc(n, dtype=float, device=device)
+        self.data.rays = alloc(n, dtype=int, device=device)
+        self.data.overflow = alloc(n, dtype=int, device=device)
         self.data.limit = wp.full(n, NO_LIMIT, dtype=int, device=device)
         self.counts: np.ndarray | None = None  # per-pixel sample counts (adaptive sampling)
+
+    def clear_counts(self) -> None:
+        """No per-pixel sample cap any more (a reused film after an adaptive render)."""
+        if self.counts is not None:
+            self.data.limit.fill_(NO_LIMIT)
+            self.counts = None
 
     def set_counts(self, counts: np.ndarray) -> None:
         """Let pixel i take at most counts[i] samples (adaptive sampling; counts >= 1)."""
