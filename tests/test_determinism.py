@@ -143,8 +143,9 @@ def test_deep_recursion_overflows_are_counted_and_pixels_stay_finite(device):
 
 def test_a_renderer_reusing_its_film_gives_what_a_new_renderer_gives(device):
     """The renderer keeps its film between renders without clearing it (the first pass starts
-    every pixel's sums): whatever came before on the same renderer (an adaptive render with its
-    per-pixel caps, more samples, another resolution, a render in another thread holding the
+    every pixel's sums), and its recorded launches while scene, camera and film stay the same:
+    whatever came before on the same renderer (an adaptive render with its per-pixel caps, more
+    samples, another resolution, another camera or scene, a render in another thread holding the
     film), each render equals a new renderer's, image and ray count, bit for bit."""
     import dataclasses
     import threading
@@ -167,6 +168,18 @@ def test_a_renderer_reusing_its_film_gives_what_a_new_renderer_gives(device):
     got, want = r.render(spp=4, seed=7, progress=False), fresh(small, spp=4, seed=7)
     assert got.image.shape == (12, 16, 3) and got.image.tobytes() == want.image.tobytes()
     r.set_camera(scene.camera)
+    # the kept launches follow a new camera of the same size and a changed scene
+    moved = dataclasses.replace(scene.camera, eye=(0.3, 1.4, 3.8))
+    r.set_camera(moved)
+    got, want = r.render(spp=4, seed=7, progress=False), fresh(moved, spp=4, seed=7)
+    assert got.image.tobytes() == want.image.tobytes()
+    r.set_camera(scene.camera)
+    brighter = scene.replace(ambient=0.2)
+    r.update(brighter)
+    got = r.render(spp=4, seed=7, progress=False)
+    want = warprt.Renderer(brighter, device=device).render(spp=4, seed=7, progress=False)
+    assert got.image.tobytes() == want.image.tobytes()
+    r.update(scene)
 
     # two threads rendering with one renderer at once: one of them takes a film of its own
     results = {}
