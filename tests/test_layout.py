@@ -107,6 +107,31 @@ def test_kernel_modules_hold_a_fixed_content(device):
                         "warprt_film": ["counted", "image"]}
 
 
+def test_every_kernel_module_compiles_without_fma_contraction(device):
+    """Each Warp module holding warprt kernels is built with ``fuse_fp=False``: on CUDA the
+    compiler otherwise fuses multiply-adds where it likes, and the specialised and full kernels
+    stop agreeing bit for bit and mesh vertices leak (``warprt._warp`` says more)."""
+    scene = warprt.Scene(camera=warprt.Camera(width=8, height=6), shapes=(warprt.Sphere(),),
+                         lights=(warprt.PointLight(),))
+    warprt.render(scene, spp=1, device=device, aovs=["depth"], progress=False)
+    warprt.BatchRenderer(scene, worlds=2, device=device).render(spp=1)
+    named = set()
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.keyword) and node.arg == "module" and isinstance(node.value, ast.Constant):
+                named.add(node.value.value)
+    named.discard("unique")
+    assert named and named <= set(warprt._warp.SHARED_MODULES), named - set(warprt._warp.SHARED_MODULES)
+    modules = wp._src.context.user_modules
+    ours = {name: m for name, m in modules.items()
+            if name in named or any(getattr(k.func, "__module__", "").startswith("warprt") for k in m.kernels.values())}
+    # the render kernel's and the batch kernel's own modules (module="unique")
+    assert {name.split("__locals__")[0] for name in ours if "__locals__" in name} == {"kernels_for", "batch_kernel_for"}
+    assert {name: m.options["fuse_fp"] for name, m in ours.items()} == dict.fromkeys(ours, False)
+    for name in named:
+        assert wp.get_module_options(name)["fuse_fp"] is False, name
+
+
 def test_scene_files_render_bit_identical_to_the_saved_images():
     """The scenes/ files at 48 pixels wide, 2 spp: bit for bit the images saved in
     tests/data/scene_images.npz (saved before the layout changed; rewrite them with

@@ -37,10 +37,13 @@ def little_memory(monkeypatch):
     monkeypatch.setattr(warprt.Renderer, "compile", never)
 
 
-def test_a_render_larger_than_the_available_memory_is_refused_before_compiling(little_memory):
+def test_a_render_larger_than_the_available_memory_is_refused_before_compiling(little_memory, device):
+    # host memory: the film's sums as well on the CPU (36 bytes a pixel), the image alone with the
+    # film on a GPU (12 bytes): 200 x 100 x 36 = 0.72 MB, 200 x 100 x 12 = 0.24 MB
+    need = "0.7" if device == "cpu" else "0.2"
     scene = warprt.scene_from_string("[camera]\nwidth = 200\nheight = 100\n")
-    with pytest.raises(warprt.RenderError, match=r"200x100 render needs about 0\.7 MB .* only 0\.0 MB is available"):
-        warprt.Renderer(scene).render(spp=1, progress=False)
+    with pytest.raises(warprt.RenderError, match=rf"200x100 render needs about {need} MB .* only 0\.0 MB is available"):
+        warprt.Renderer(scene, device=device).render(spp=1, progress=False)
 
 
 def test_the_cli_refuses_in_one_line_and_writes_nothing(little_memory, tmp_path, capsys):

@@ -6,6 +6,14 @@ cache folder that cannot be created or written to is a :class:`warprt.RenderErro
 CLI prints it in one line and exits 2), raised before anything is built or compiled.
 Backward (adjoint) code is never generated for warprt's own kernels (each is declared with
 ``enable_backward=False``: warprt does not differentiate, and skipping it halves compile time);
+Every warprt module compiles with ``fuse_fp=False`` (:data:`MODULE_OPTIONS`): no multiply-add
+contraction into FMAs. Warp's CPU compiler contracts nothing in its generated code either way,
+but NVRTC's default (``--fmad=true``) fuses across statements, and on CUDA that made a kernel's
+rounding depend on what the compiler chose to fuse: a scene-specialised kernel no longer matched
+the full one bit for bit, and rays aimed exactly at mesh vertices and axis-aligned edges leaked
+through them about twice as often as on the CPU (``tests/stability``: the same leak rates come
+back on the CPU when its compiler is told ``-ffp-contract=fast``). Without contraction every
+operation rounds once, as the CPU does, on every device.
 Warp's process-wide settings are left as the host application set them.
 
 ``build_once`` is the one way kernels and device-function sets are cached: per argument value,
@@ -22,6 +30,15 @@ from typing import Callable, TypeVar
 import warp as wp
 
 T = TypeVar("T")
+
+#: options of every Warp module warprt compiles (see the module docstring)
+MODULE_OPTIONS = {"fuse_fp": False}
+#: warprt's shared Warp modules (its other kernels have a module of their own, ``module="unique"``,
+#: and pass ``module_options=MODULE_OPTIONS``)
+SHARED_MODULES = ("warprt_accel", "warprt_aov", "warprt_build", "warprt_film", "warprt_newton",
+                  "warprt_query", "warprt_worlds", "warprt_worlds_aov")
+for _name in SHARED_MODULES:
+    wp.set_module_options(MODULE_OPTIONS, module=_name)
 
 _lock = threading.Lock()
 _ready = False

@@ -26,6 +26,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
+from . import _warp
 from ._warp import build_once
 from .camera import camera_ray
 from .film import FilmData, luminance, sanitize
@@ -287,7 +288,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
         film.rays[pixel] = rays
         film.overflow[pixel] = dropped
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
                       row0: int, stride: int, s0: int, s1: int, film: FilmData, run: int):
         # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame),

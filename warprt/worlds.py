@@ -251,7 +251,7 @@ def batch_kernel_for(F: Features):
     on each world's tables (one Warp module per feature set, compiled on first use)."""
     render_pixel = kernels_for(F).pixel
 
-    @wp.kernel(module="unique", enable_backward=False)
+    @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
                      row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
                      n_cams: int, height: int, width: int, run: int, inv_spp: float, color: wp.array(dtype=wp.vec3)):
