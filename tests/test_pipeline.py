@@ -4,6 +4,7 @@ executors (Ray included), CUDA parity, the image-check helpers and interrupted r
 from __future__ import annotations
 
 import _thread
+import importlib.metadata
 import math
 import os
 import pathlib
@@ -322,22 +323,39 @@ def test_assert_images_close_passes_and_fails_with_a_difference_image(tmp_path, 
         assert_images_close(nan, img, rel_mse=1.0)
 
 
+def _plugin_registered() -> bool:
+    return any(ep.value == "warprt.testing" for ep in importlib.metadata.entry_points(group="pytest11"))
+
+
+def test_the_installed_package_registers_its_pytest_plugin():
+    """``pip install`` registers ``warprt.testing`` with pytest (the ``pytest11`` entry point in
+    pyproject.toml), so the ``warprt_reference`` fixture needs no ``-p`` or conftest."""
+    try:
+        importlib.metadata.distribution("warprt")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("warprt is importable but not installed (e.g. through PYTHONPATH): no entry points")
+    assert _plugin_registered()
+
+
 def test_reference_fixture_writes_then_compares(pytester):
+    # installed, the plugin comes from its entry point (the test above); from a source tree on
+    # PYTHONPATH it is named here, as a user would with -p warprt.testing
+    plugin = () if _plugin_registered() else ("-p", "warprt.testing")
     pytester.makepyfile(test_user="""
         import numpy as np
         def test_image(warprt_reference):
             warprt_reference(np.full((4, 4, 3), 0.25, np.float32))
     """)
-    first = pytester.runpytest("-q")
+    first = pytester.runpytest("-q", *plugin)
     first.assert_outcomes(failed=1)
     assert (pytester.path / "references" / "test_image.exr").exists()
-    pytester.runpytest("-q").assert_outcomes(passed=1)
+    pytester.runpytest("-q", *plugin).assert_outcomes(passed=1)
     pytester.makepyfile(test_user="""
         import numpy as np
         def test_image(warprt_reference):
             warprt_reference(np.full((4, 4, 3), 0.5, np.float32))
     """)
-    pytester.runpytest("-q").assert_outcomes(failed=1)
+    pytester.runpytest("-q", *plugin).assert_outcomes(failed=1)
 
 
 # --- interruption ---------------------------------------------------------------------------------
