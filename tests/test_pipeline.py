@@ -172,15 +172,30 @@ def test_sequence_reuses_kernel_and_bvh_and_matches_fresh_renders():
     assert all(a.tobytes() == b.tobytes() for a, b in zip(seq, images))
 
 
-def test_mesh_points_from_numpy_or_warp_refit_without_rebuild():
-    v = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], float)
-    scene = _scene(shapes=(warprt.Mesh(vertices=v, faces=[[0, 1, 2]], material="red"),), lights=(warprt.PointLight(),))
+def _grid_mesh(n: int):
+    """An n × n grid of quads in z = 0 over [-1, 1]², two triangles each, bumped in z."""
+    x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    v = np.stack([x.ravel(), y.ravel(), 0.1 * np.sin(3 * x.ravel()) * np.cos(2 * y.ravel())], 1)
+    k = np.arange(n * (n + 1)).reshape(n, n + 1)[:, :n].ravel()
+    f = np.concatenate([np.stack([k, k + 1, k + n + 2], 1), np.stack([k, k + n + 2, k + n + 1], 1)])
+    return v, f
+
+
+@pytest.mark.parametrize("n_faces", [1, 128])
+def test_mesh_points_from_numpy_or_warp_refit_without_rebuild(n_faces):
+    # one triangle: Warp's query (a tree of one leaf); 128: the CPU's copy of the tree, rewritten
+    # after the refit (accel.MeshTree)
+    if n_faces == 1:
+        v, f = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], float), np.array([[0, 1, 2]])
+    else:
+        v, f = _grid_mesh(8)
+    scene = _scene(shapes=(warprt.Mesh(vertices=v, faces=f, material="red"),), lights=(warprt.PointLight(),))
     renderer = warprt.Renderer(scene)
     mesh = renderer.built.meshes[0]
     moved = v + [0.3, 0.2, 0.0]
     renderer.set_mesh_points(0, moved)
     a = renderer.render(spp=1, progress=False).image
-    expected = warprt.Renderer(scene.replace(shapes=(warprt.Mesh(vertices=moved, faces=[[0, 1, 2]], material="red"),)))
+    expected = warprt.Renderer(scene.replace(shapes=(warprt.Mesh(vertices=moved, faces=f, material="red"),)))
     assert a.tobytes() == expected.render(spp=1, progress=False).image.tobytes()
     # points straight from a Warp simulation (a wp.array on the scene's device)
     renderer.set_mesh_points(0, wp.array(v.astype(np.float32), dtype=wp.vec3, device=renderer.device))
@@ -190,7 +205,7 @@ def test_mesh_points_from_numpy_or_warp_refit_without_rebuild():
     with pytest.raises(warprt.RenderError, match="shape"):
         renderer.set_mesh_points(0, v[:2])
     with pytest.raises(warprt.RenderError, match="finite"):
-        renderer.set_mesh_points(0, np.full((3, 3), np.nan))
+        renderer.set_mesh_points(0, np.full_like(v, np.nan))
 
 
 def test_camera_and_lights_change_between_frames():

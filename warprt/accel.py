@@ -252,3 +252,228 @@ def refit_kernel(nodes: wp.array(dtype=BvhNode), lowers: wp.array(dtype=wp.vec3)
         nd.lo1 = lo1
         nd.hi1 = hi1
         nodes[i] = nd
+
+
+# --- meshes: Warp's tree, traversed in native code -----------------------------------------------
+#
+# A mesh keeps its ``wp.Mesh`` (built with leaves of one triangle: its SAH build and refit are
+# Warp's), and on the CPU a copy of that tree in the layout above: every node holds both
+# children's boxes, and the triangles' corners are stored in leaf order, so a node costs one load
+# and a triangle no index lookups. ``mesh_tree_kernel`` writes the copy from Warp's nodes (O(n),
+# ~8 ms for 328k triangles) after every build or refit. The traversal is C++ (``func_native``):
+# written in Warp's Python language the same algorithm ran at 1.06-1.10x the time of Warp's own
+# query, in C++ at 0.77-0.80x on peer scene (d)'s rays (docs/benchmarks.md, levers). A triangle
+# is Woop, Benthin and Wald's watertight test computed as Warp's ``intersect_ray_tri_woop``
+# computes it (FMA-compensated edge functions, again in double where one is zero, t, u and v from
+# 1/det), with the ray's shear set up once per ray: each triangle's t, u and v are Warp's bit for
+# bit. The boxes' slab test takes a margin of 4e-7 (Warp's
+# none). The C++ is sensitive to its shape: variants that look equivalent (a loop over a leaf's
+# triangles, a ``while (node >= 0)`` loop, the leaf test called from a third place) ran at
+# 1.03-1.06x Warp's time, so changes here want the A/B of the levers table. On CUDA the snippet
+# calls ``wp::mesh_query_ray`` itself (no copy is made there), as it does for a tree it cannot
+# take (a mesh of one triangle, a leaf of several) and for a ray whose stack would pass 80 entries.
+
+_TREE_COPY = r"""
+const wp::Mesh mesh = wp::mesh_get(mid);
+const wp::BVH& bvh = mesh.bvh;
+if (i == 0) {
+    const int r = *bvh.root;
+    const wp::BVHPackedNodeHalf rl = bvh.node_lowers[r], ru = bvh.node_uppers[r];
+    root_out.data[0] = rl.b ? -(int)rl.i - 1 : r;
+    root_out.data[1] = rl.b ? (int)ru.i - (int)rl.i : 0;
+}
+if (i >= bvh.num_nodes) return 0;
+const wp::BVHPackedNodeHalf l = bvh.node_lowers[i], u = bvh.node_uppers[i];
+float* N = (float*)nodes;
+int* K = (int*)kids;
+float* T = (float*)tris;
+if (l.b) {
+    for (int k = (int)l.i; k < (int)u.i; ++k) {
+        const int f = bvh.primitive_indices[k];
+        for (int c = 0; c < 3; ++c) {
+            const wp::vec3 p = mesh.points[mesh.indices[3 * f + c]];
+            T[9 * k + 3 * c + 0] = p[0];
+            T[9 * k + 3 * c + 1] = p[1];
+            T[9 * k + 3 * c + 2] = p[2];
+        }
+    }
+    return (int)u.i - (int)l.i;
+}
+const int ch[2] = {(int)l.i, (int)u.i};
+for (int c = 0; c < 2; ++c) {
+    const wp::BVHPackedNodeHalf cl = bvh.node_lowers[ch[c]], cu = bvh.node_uppers[ch[c]];
+    float* b = N + 12 * i + 6 * c;
+    b[0] = cl.x; b[1] = cl.y; b[2] = cl.z; b[3] = cu.x; b[4] = cu.y; b[5] = cu.z;
+    // a child leaf: -(its position in leaf order) - 1
+    K[2 * i + c] = cl.b ? -(int)cl.i - 1 : ch[c];
+}
+return 0;
+"""
+
+
+@wp.func_native(_TREE_COPY)
+def _tree_copy_node(mid: wp.uint64, i: int, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64,
+                    root_out: wp.array(dtype=wp.int32)) -> int:
+    ...
+
+
+@wp.kernel(module="warprt_accel", enable_backward=False)
+def mesh_tree_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64,
+                     root_out: wp.array(dtype=wp.int32), leaf_max: wp.array(dtype=wp.int32)):
+    """Node i of the mesh's Warp tree into the copy (``MeshTree``)."""
+    i = wp.tid()
+    n = _tree_copy_node(mid, i, nodes, kids, tris, root_out)
+    if n > 1:
+        wp.atomic_max(leaf_max, 0, n)
+
+
+class MeshTree:
+    """The CPU copy of a ``wp.Mesh``'s tree (see above); ``refresh`` after the mesh is refitted."""
+
+    def __init__(self, mesh: "wp.Mesh", n_faces: int):
+        dev = mesh.device
+        self.mesh = mesh
+        slots = max(2 * n_faces - 1, 1)  # Warp's node indices for n leaves of one triangle
+        self.nodes = wp.zeros(12 * slots, dtype=wp.float32, device=dev)
+        self.kids = wp.zeros(2 * slots, dtype=wp.int32, device=dev)
+        self.tris = wp.zeros(9 * n_faces, dtype=wp.float32, device=dev)
+        self._root = wp.zeros(2, dtype=wp.int32, device=dev)
+        self._leaf_max = wp.zeros(1, dtype=wp.int32, device=dev)
+        self.slots = slots
+        self.refresh()
+
+    def refresh(self) -> None:
+        wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
+                  inputs=[self.mesh.id, self.nodes.ptr, self.kids.ptr, self.tris.ptr, self._root, self._leaf_max])
+        root = self._root.numpy()
+        self.root = int(root[0])
+        # Warp's builder keeps to leaves of one triangle unless triangles cannot be told apart
+        # (equal centroids); a tree with a larger leaf is not copied: Warp's query serves it
+        self.usable = int(self._leaf_max.numpy()[0]) <= 1 and self.root >= 0
+
+    def record(self) -> dict:
+        """The instance record's fields for this tree."""
+        if not self.usable:
+            return dict(NO_TREE)
+        return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root)
+
+
+NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0)
+
+# the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
+# (each exact in a float32 for any face count Warp can index)
+MeshRayHit = wp.types.vector(length=5, dtype=wp.float32)
+
+_TREE_RAY = r"""
+wp::vec_t<5, wp::float32> out;
+out[0] = -1.0f;
+#if !defined(__CUDA_ARCH__)
+if (nodes != 0) {
+    const float* N = (const float*)nodes;
+    const int* C = (const int*)kids;
+    const float* TR = (const float*)tris;
+    const float ox = o[0], oy = o[1], oz = o[2], dx = d[0], dy = d[1], dz = d[2];
+    const float ix = 1.0f / (dx == 0.0f ? 1e-20f : dx), iy = 1.0f / (dy == 0.0f ? 1e-20f : dy),
+                iz = 1.0f / (dz == 0.0f ? 1e-20f : dz);
+    float best = t_max, bu = 0.0f, bv = 0.0f;
+    int hitp = -1;
+    auto fminf = [](float a, float b) { return a < b ? a : b; };
+    auto fmaxf = [](float a, float b) { return a > b ? a : b; };
+    int sn[80];
+    float st[80];
+    int sp = 0;
+    int node = root;
+    // the ray's shear (Woop, Benthin and Wald), set up once per ray
+    int kz = fabsf(dx) > fabsf(dy) ? (fabsf(dx) > fabsf(dz) ? 0 : 2) : (fabsf(dy) > fabsf(dz) ? 1 : 2);
+    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+    const float dk[3] = {dx, dy, dz};
+    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+    const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
+    const float ok[3] = {ox, oy, oz};
+    const float okx = ok[kx], oky = ok[ky], okz = ok[kz];
+    // the watertight test, as wp::intersect_ray_tri_woop computes it once the shear is set
+    auto tri_test = [&](int k) {
+        const float* t = TR + 9 * k;
+        const float Ax0 = t[kx] - okx, Ay0 = t[ky] - oky, Az0 = t[kz] - okz;
+        const float Bx0 = t[3 + kx] - okx, By0 = t[3 + ky] - oky, Bz0 = t[3 + kz] - okz;
+        const float Cx0 = t[6 + kx] - okx, Cy0 = t[6 + ky] - oky, Cz0 = t[6 + kz] - okz;
+        const float Ax = Ax0 - Sx * Az0, Ay = Ay0 - Sy * Az0;
+        const float Bx = Bx0 - Sx * Bz0, By = By0 - Sy * Bz0;
+        const float Cx = Cx0 - Sx * Cz0, Cy = Cy0 - Sy * Cz0;
+        float U = wp::diff_product(Cx, By, Cy, Bx), V = wp::diff_product(Ax, Cy, Ay, Cx), W = wp::diff_product(Bx, Ay, By, Ax);
+        if (U == 0.0f || V == 0.0f || W == 0.0f) {
+            U = (float)((double)Cx * By - (double)Cy * Bx);
+            V = (float)((double)Ax * Cy - (double)Ay * Cx);
+            W = (float)((double)Bx * Ay - (double)By * Ax);
+        }
+        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return;
+        const float det = U + V + W;
+        if (det == 0.0f) return;
+        const float T = U * (Sz * Az0) + V * (Sz * Bz0) + W * (Sz * Cz0);
+        if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) return;
+        const float rcp = 1.0f / det;
+        const float tt = T * rcp;
+        if (tt < best && tt >= 0.0f) { best = tt; bu = U * rcp; bv = V * rcp; hitp = k; }
+    };
+    while (true) {
+        const float* nd = N + 12 * node;
+        float a0 = (nd[0] - ox) * ix, b0 = (nd[3] - ox) * ix;
+        float a1 = (nd[1] - oy) * iy, b1 = (nd[4] - oy) * iy;
+        float a2 = (nd[2] - oz) * iz, b2 = (nd[5] - oz) * iz;
+        float n0 = fmaxf(fmaxf(fminf(a0, b0), fminf(a1, b1)), fmaxf(fminf(a2, b2), 0.0f));
+        float f0 = fminf(fminf(fmaxf(a0, b0), fmaxf(a1, b1)), fmaxf(a2, b2));
+        float c0x = (nd[6] - ox) * ix, d0x = (nd[9] - ox) * ix;
+        float c1y = (nd[7] - oy) * iy, d1y = (nd[10] - oy) * iy;
+        float c2z = (nd[8] - oz) * iz, d2z = (nd[11] - oz) * iz;
+        float n1 = fmaxf(fmaxf(fminf(c0x, d0x), fminf(c1y, d1y)), fmaxf(fminf(c2z, d2z), 0.0f));
+        float f1 = fminf(fminf(fmaxf(c0x, d0x), fmaxf(c1y, d1y)), fmaxf(c2z, d2z));
+        int k0 = C[2 * node], k1 = C[2 * node + 1];
+        bool h0 = n0 <= f0 * 1.0000004f && n0 < best;
+        bool h1 = n1 <= f1 * 1.0000004f && n1 < best;
+        if (h0 && k0 < 0) { tri_test(-k0 - 1); h0 = false; }
+        if (h1 && k1 < 0) { tri_test(-k1 - 1); h1 = false; }
+        h0 = h0 && n0 < best;
+        h1 = h1 && n1 < best;
+        if (h0 && h1) {
+            if (sp == 80) { sp = -1; break; }  // a tree this deep: Warp's query below takes the ray
+            bool first0 = n0 <= n1;
+            sn[sp] = first0 ? k1 : k0;
+            st[sp] = first0 ? n1 : n0;
+            ++sp;
+            node = first0 ? k0 : k1;
+            continue;
+        }
+        if (h0) { node = k0; continue; }
+        if (h1) { node = k1; continue; }
+        bool found = false;
+        while (sp > 0) {
+            --sp;
+            if (st[sp] < best) { node = sn[sp]; found = true; break; }
+        }
+        if (!found) break;
+    }
+    if (sp < 0) hitp = -2;
+    else if (hitp >= 0) {
+        const int face = wp::mesh_get(mid).bvh.primitive_indices[hitp];
+        out[0] = best; out[1] = bu; out[2] = bv; out[3] = (float)(face >> 12); out[4] = (float)(face & 4095);
+    }
+    if (hitp != -2) return out;
+}
+#endif
+// no copy (CUDA, a mesh of one triangle, or leaves of several) or a stack too short: Warp's query
+float t, u, v, sign;
+wp::vec3 n;
+int face;
+if (wp::mesh_query_ray(mid, o, d, t_max, t, u, v, sign, n, face)) {
+    out[0] = t; out[1] = u; out[2] = v; out[3] = (float)(face >> 12); out[4] = (float)(face & 4095);
+}
+return out;
+"""
+
+
+
+@wp.func_native(_TREE_RAY)
+def mesh_tree_ray(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int,
+                  o: wp.vec3, d: wp.vec3, t_max: float) -> MeshRayHit:
+    """The nearest triangle of mesh ``mid`` along (o, d) in [0, t_max] (see above)."""
+    ...

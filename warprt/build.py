@@ -18,7 +18,7 @@ import warnings
 import numpy as np
 import warp as wp
 
-from .accel import BvhNode, build_tree, forest_nodes
+from .accel import NO_TREE, BvhNode, MeshTree, build_tree, forest_nodes
 from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
@@ -65,6 +65,7 @@ class DeviceScene:
         rows: dict[str, list[dict]] = {k.table: [] for k in KINDS}
         ins: list[dict] = []
         self.meshes: list[wp.Mesh] = []
+        self.trees: list[MeshTree | None] = []  # each asset's CPU tree copy (None on CUDA)
         asset_ids: dict[object, int] = {}
         normals: list[np.ndarray] = []
         nrm_offsets: list[int] = []
@@ -81,10 +82,15 @@ class DeviceScene:
                         if key not in self.assets:
                             v, f = read_mesh_file(s.file) if s.file is not None else (s.vertices, s.faces)
                             v32, f32 = prepare_mesh(v, f, s.degenerate)
+                            # leaves of one triangle: on the CPU the tree is copied for warprt's own
+                            # traversal (accel.MeshTree); CUDA keeps Warp's default leaves and query
                             mesh = wp.Mesh(points=wp.array(v32, dtype=wp.vec3, device=dev),
-                                           indices=wp.array(f32.reshape(-1), dtype=wp.int32, device=dev))
-                            self.assets[key] = (mesh, vertex_normals(v32, f32))
-                        mesh, vn = self.assets[key]
+                                           indices=wp.array(f32.reshape(-1), dtype=wp.int32, device=dev),
+                                           **({"bvh_leaf_size": 1} if dev.is_cpu else {}))
+                            tree = MeshTree(mesh, len(f32)) if dev.is_cpu else None
+                            self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
+                        mesh, vn, tree = self.assets[key]
+                        self.trees.append(tree)
                         asset_ids[key] = len(self.meshes)
                         self.meshes.append(mesh)
                         normals.append(vn)
@@ -99,7 +105,8 @@ class DeviceScene:
                     ins.append(dict(mesh=self.meshes[a].id, pos0=t0.translate, rot0=q0, scl0=t0.scale,
                                     pos1=t1.translate, rot1=same_hemisphere(t1.quaternion(), q0), scl1=t1.scale,
                                     mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a],
-                                    olo=(0.0, 0.0, 0.0), ohi=(0.0, 0.0, 0.0), lo=(0.0, 0.0, 0.0), hi=(0.0, 0.0, 0.0)))
+                                    olo=(0.0, 0.0, 0.0), ohi=(0.0, 0.0, 0.0), lo=(0.0, 0.0, 0.0), hi=(0.0, 0.0, 0.0),
+                                    **(self.trees[a].record() if self.trees[a] is not None else NO_TREE)))
                 else:
                     kind = BY_CLASS[type(s)]
                     self.shape_ids.append((kind.tag, len(rows[kind.table])))
@@ -167,18 +174,20 @@ class DeviceScene:
         if kind != KIND_MESH:
             raise SceneError(f"shape {shape_index} is not a mesh", f"shapes[{shape_index}]")
         key = self.instance_assets[row]
-        mesh, _ = self.assets[key]
+        mesh, _, tree = self.assets[key]
         p = as_points(points, mesh.points.shape[0], self.device)
         if isinstance(p, wp.array):
             wp.copy(mesh.points, p)
         else:
             mesh.points.assign(p)
         mesh.refit()
+        if tree is not None:
+            tree.refresh()  # same topology and root: the instance records stay valid
         wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
         if any(isinstance(s, Mesh) and s.smooth for s in self.scene.shapes):
             faces = mesh.indices.numpy().reshape(-1, 3)
             vn = vertex_normals(mesh.points.numpy(), faces)
-            self.assets[key] = (mesh, vn)
+            self.assets[key] = (mesh, vn, tree)
             off = self.normal_offsets[key]
             all_n = self.data.normals.numpy()
             all_n[off:off + len(vn)] = vn

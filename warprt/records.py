@@ -172,6 +172,10 @@ class InstRec:
     ohi: wp.vec3
     lo: wp.vec3  # the instance's box in world space over the shutter (rays that miss it skip the mesh)
     hi: wp.vec3
+    tree_nodes: wp.uint64  # the asset's tree on the CPU (accel.MeshTree: addresses; 0 on CUDA)
+    tree_kids: wp.uint64
+    tree_tris: wp.uint64
+    tree_root: int
 
 
 @wp.struct

@@ -20,7 +20,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .accel import StackDist, StackRefs, safe_inverse, slab
+from .accel import StackDist, StackRefs, mesh_tree_ray, safe_inverse, slab
 from ._warp import build_once
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
@@ -269,27 +269,32 @@ def leaves_face(mid: wp.uint64, face: int, o: wp.vec3, d: wp.vec3) -> bool:
 
 
 @wp.func
-def mesh_first_hit(mid: wp.uint64, o: wp.vec3, d: wp.vec3, t_max: float) -> MeshHit:
-    """Nearest hit of mesh ``mid`` along (o, d) (object space) in (0, t_max) on a triangle the ray
-    really approaches (see ``leaves_face``); ``index`` 0 for a hit, -1 for none. A rejected hit
-    (or one exactly at the origin) is stepped over by its rounding and the query repeated."""
+def mesh_first_hit(inst: InstRec, o: wp.vec3, d: wp.vec3, t_max: float) -> MeshHit:
+    """Nearest hit of instance ``inst``'s mesh along (o, d) (object space) in (0, t_max) on a
+    triangle the ray really approaches (see ``leaves_face``); ``index`` 0 for a hit, -1 for none.
+    A rejected hit (or one exactly at the origin) is stepped over by its rounding and the query
+    repeated. The query is ``accel.mesh_tree_ray`` (the CPU copy of the tree; Warp's on CUDA)."""
     r = MeshHit()
     r.index = -1
+    mid = inst.mesh
     t0 = float(0.0)
     for _k in range(4):
-        q = wp.mesh_query_ray(mid, o + d * t0, d, t_max - t0)
-        if not q.result:
+        q = mesh_tree_ray(mid, inst.tree_nodes, inst.tree_kids, inst.tree_tris, inst.tree_root,
+                          o + d * t0, d, t_max - t0)
+        if q[0] < 0.0:
             return r
-        if q.t > 0.0 and not leaves_face(mid, q.face, o, d):
+        qt = q[0]
+        face = int(q[3]) * 4096 + int(q[4])
+        if qt > 0.0 and not leaves_face(mid, face, o, d):
             r.index = 0
-            r.t = t0 + q.t
-            r.face = q.face
-            r.u = q.u
-            r.v = q.v
+            r.t = t0 + qt
+            r.face = face
+            r.u = q[1]
+            r.v = q[2]
             return r
         mesh = wp.mesh_get(mid)
-        v0 = mesh.points[mesh.indices[q.face * 3]]
-        t0 = t0 + wp.max(q.t, 0.0) + spawn_offset(max_abs(o) + max_abs(v0)) / wp.length(d)
+        v0 = mesh.points[mesh.indices[face * 3]]
+        t0 = t0 + wp.max(qt, 0.0) + spawn_offset(max_abs(o) + max_abs(v0)) / wp.length(d)
         if t0 >= t_max:
             return r
     return r
@@ -472,7 +477,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             pose = instance_pose(scene, i, time)
             # (a hit exactly at t_min is outside the open range (t_min, t_max): mesh_first_hit
             # looks beyond it, as it does past a ray's own surface)
-            q = mesh_first_hit(scene.insts[i].mesh, to_object(pose, start), dir_to_object(pose, d), best - t_min)
+            q = mesh_first_hit(scene.insts[i], to_object(pose, start), dir_to_object(pose, d), best - t_min)
             if q.index >= 0:
                 if q.t + t_min < best:
                     best = q.t + t_min
@@ -823,7 +828,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             if wp.max(kt) <= 0.0:
                 # the nearest hit, so that the surface the ray leaves can be told apart (an any-hit
                 # query can stop on it, and confirming a hit took a second traversal)
-                if mesh_first_hit(scene.insts[i].mesh, o_obj, d_obj, t_max).index >= 0:
+                if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
                     return wp.vec3(0.0, 0.0, 0.0)
             else:
                 # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
@@ -834,7 +839,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                 d_len = wp.length(d_obj)
                 o_cur = o_obj
                 for _k in range(64):
-                    q = mesh_first_hit(scene.insts[i].mesh, o_cur, d_obj, t_max - t0)
+                    q = mesh_first_hit(scene.insts[i], o_cur, d_obj, t_max - t0)
                     if q.index < 0:
                         break
                     T = wp.cw_mul(T, kt)

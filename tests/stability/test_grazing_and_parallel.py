@@ -769,11 +769,13 @@ def test_rays_at_shared_edges_of_a_closed_mesh_never_leak(name):
     np.testing.assert_allclose(np.linalg.norm(h["normal"], axis=1), 1.0, atol=1e-6)
 
 
-# mesh, general position, target kind: the largest leak share allowed, about twice the measured
-# share (fixed seeds; "measured" in parentheses). Warp's ray-box slab test (no rounding margin) can
-# cull both faces of a point on their boxes' boundary: vertices are box corners, an edge along an
-# axis lies on box faces. Such rays come from constructions like these, not from camera rays:
-# a camera's rays cross a mesh edge exactly only by coincidence.
+# mesh, general position, target kind: the largest leak share allowed on CUDA, about twice the
+# share measured with Warp's own query (fixed seeds; "measured" in parentheses). Warp's ray-box
+# slab test (no rounding margin) can cull both faces of a point on their boxes' boundary: vertices
+# are box corners, an edge along an axis lies on box faces. Such rays come from constructions
+# like these, not from camera rays: a camera's rays cross a mesh edge exactly only by coincidence.
+# On the CPU meshes are traced by warprt's own traversal (``accel.mesh_tree_ray``), whose slab
+# test takes a margin of 4e-7: no ray leaks there (measured: 0 in every case), and none may.
 LEAK_BOUNDS = [("icosphere", True, "vertex", 0.008),   # (0.37%)
                ("icosphere", False, "vertex", 0.012),  # (0.54%)
                ("icosphere", False, "edge", 0.001),    # (0.023%: the edges at constant y and z)
@@ -786,9 +788,10 @@ LEAK_BOUNDS = [("icosphere", True, "vertex", 0.008),   # (0.37%)
 @pytest.mark.parametrize("name, general, target, bound", LEAK_BOUNDS,
                          ids=[f"{n}-{'general' if g else 'axis'}-{t}" for n, g, t, _ in LEAK_BOUNDS])
 def test_leaks_at_vertices_and_axis_aligned_edges_stay_rare(name, general, target, bound):
-    """Rays aimed exactly at vertices, or at points of edges lying along coordinate axes, leak
-    at a bounded rate: they miss the mesh or pass through to a far face, i.e. their t is not the
-    target's distance within 1e-5 (the mesh is convex, or flat)."""
+    """Rays aimed exactly at vertices, or at points of edges lying along coordinate axes, never
+    leak on the CPU and leak at a bounded rate on CUDA. A leaked ray misses the mesh or passes
+    through to a far face: its t is not the target's distance within 1e-5 (the mesh is convex,
+    or flat)."""
     rng = np.random.default_rng(28)
     if name == "grid":
         v, f, _ = flat_grid()
@@ -817,4 +820,6 @@ def test_leaks_at_vertices_and_axis_aligned_edges_stay_rare(name, general, targe
     assert len(o) > 3000
     t_ref = np.linalg.norm(tg - o.astype(np.float64), axis=1)
     leaked = np.abs(h["t"] - t_ref) > 1e-5  # inf for a miss
+    if warprt._warp.resolve_device(None).is_cpu:
+        bound = 0.0
     assert leaked.mean() <= bound, f"{leaked.mean():.3%} of the rays leaked (bound {bound:.2%})"
