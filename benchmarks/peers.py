@@ -818,6 +818,31 @@ def _llvm_note(machine: dict) -> str:
     return f" ({os.path.basename(lib)})" if lib and machine.get("variant", "").startswith("llvm") else ""
 
 
+def cpu_info() -> dict:
+    """The CPU's model and its widest vector extension. Mitsuba's LLVM backend runs its samples in
+    vector lanes as wide as the CPU has (16 floats with AVX-512, 8 with AVX2), warprt's kernels one
+    sample per thread: the ratios depend on it as much as on either renderer."""
+    model, flags = "", set()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name") and not model:
+                    model = line.split(":", 1)[1].strip()
+                elif line.startswith("flags") and not flags:
+                    flags = set(line.split(":", 1)[1].split())
+    except OSError:
+        pass
+    simd = ("AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "AVX" if "avx" in flags
+            else "SSE" if flags else "")
+    return {"cpu": model or platform.processor() or platform.machine(), "simd": simd}
+
+
+def _cpu_note(machine: dict) -> str:
+    """" (AMD EPYC, AVX-512)" after the core count; empty for runs that did not record it."""
+    cpu = ", ".join(x for x in (machine.get("cpu"), machine.get("simd")) if x)
+    return f" ({cpu})" if cpu else ""
+
+
 def markdown_table(results: dict) -> str:
     lines = ["| scene | size | same image? | warprt → 1e-2 | Mitsuba → 1e-2 | ratio | warprt → 1e-3 | "
              "Mitsuba → 1e-3 | ratio | ratio on CPU s | Msamples/s warprt | Msamples/s Mitsuba |",
@@ -844,7 +869,7 @@ def markdown_table(results: dict) -> str:
                  f"from one; \"ratio on CPU s\": "
                  f"the same at 1e-3 on process CPU seconds. Mitsuba {m['mitsuba']} "
                  f"`{m['variant']}`{_llvm_note(m)}, warprt {m['warprt']} on the CPU device, {THREADS} threads each, "
-                 f"{results['repeats']} interleaved repeats, min time; {m['cpus']} CPU cores, Python {m['python']}. "
+                 f"{results['repeats']} interleaved repeats, min time; {m['cpus']} CPU cores{_cpu_note(m)}, Python {m['python']}. "
                  f"Msamples/s: pixel samples per second at the highest spp all four curves reached "
                  f"({', '.join(sorted({str(r['throughput_spp']) for r in results['scenes'].values()}))} spp).")
     return "\n".join(lines)
@@ -988,7 +1013,7 @@ def main(argv=None) -> int:
     results = {"machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
                            "warprt": warprt.__version__, "warp": wp.config.version, "mitsuba": mi.__version__,
                            "drjit": dr.__version__, "variant": variant, "variant_note": note, "threads": THREADS,
-                           "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH")},
+                           "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH"), **cpu_info()},
                "quick": q, "repeats": args.repeats, "spps": args.spps, "ref_spp": args.ref_spp,
                "check_spp": args.check_spp, "early_stop": args.early_stop, "min_spp": args.min_spp,
                "targets": list(TARGETS),
