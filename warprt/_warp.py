@@ -6,15 +6,16 @@ cache folder that cannot be created or written to is a :class:`warprt.RenderErro
 CLI prints it in one line and exits 2), raised before anything is built or compiled.
 Backward (adjoint) code is never generated for warprt's own kernels (each is declared with
 ``enable_backward=False``: warprt does not differentiate, and skipping it halves compile time);
+Warp's process-wide settings are left as the host application set them.
+
 Every warprt module compiles with ``fuse_fp=False`` (:data:`MODULE_OPTIONS`): no multiply-add
 contraction into FMAs. Warp's CPU compiler contracts nothing in its generated code either way,
 but NVRTC's default (``--fmad=true``) fuses across statements, and on CUDA that made a kernel's
 rounding depend on what the compiler chose to fuse: a scene-specialised kernel no longer matched
 the full one bit for bit, and rays aimed exactly at mesh vertices and axis-aligned edges leaked
-through them about twice as often as on the CPU (``tests/stability``: the same leak rates come
+through Warp's mesh query 2-4x as often as it let them through on the CPU (the same rates come
 back on the CPU when its compiler is told ``-ffp-contract=fast``). Without contraction every
 operation rounds once, as the CPU does, on every device.
-Warp's process-wide settings are left as the host application set them.
 
 ``build_once`` is the one way kernels and device-function sets are cached: per argument value,
 built under a lock so that threads never build the same module twice.

@@ -277,10 +277,9 @@ _TREE_COPY = r"""
 const wp::Mesh mesh = wp::mesh_get(mid);
 const wp::BVH& bvh = mesh.bvh;
 if (i == 0) {
+    // the root, or -1 where it is a leaf (a mesh of one triangle: Warp's query takes it)
     const int r = *bvh.root;
-    const wp::BVHPackedNodeHalf rl = bvh.node_lowers[r], ru = bvh.node_uppers[r];
-    root_out.data[0] = rl.b ? -(int)rl.i - 1 : r;
-    root_out.data[1] = rl.b ? (int)ru.i - (int)rl.i : 0;
+    info.data[0] = bvh.node_lowers[r].b ? -1 : r;
 }
 if (i >= bvh.num_nodes) return 0;
 const wp::BVHPackedNodeHalf l = bvh.node_lowers[i], u = bvh.node_uppers[i];
@@ -313,18 +312,19 @@ return 0;
 
 @wp.func_native(_TREE_COPY)
 def _tree_copy_node(mid: wp.uint64, i: int, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64,
-                    root_out: wp.array(dtype=wp.int32)) -> int:
+                    info: wp.array(dtype=wp.int32)) -> int:
     ...
 
 
 @wp.kernel(module="warprt_accel", enable_backward=False)
 def mesh_tree_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64,
-                     root_out: wp.array(dtype=wp.int32), leaf_max: wp.array(dtype=wp.int32)):
-    """Node i of the mesh's Warp tree into the copy (``MeshTree``)."""
+                     info: wp.array(dtype=wp.int32)):
+    """Node i of the mesh's Warp tree into the copy (``MeshTree``); ``info``: the root, and the
+    most triangles in a leaf."""
     i = wp.tid()
-    n = _tree_copy_node(mid, i, nodes, kids, tris, root_out)
+    n = _tree_copy_node(mid, i, nodes, kids, tris, info)
     if n > 1:
-        wp.atomic_max(leaf_max, 0, n)
+        wp.atomic_max(info, 1, n)
 
 
 class MeshTree:
@@ -337,19 +337,19 @@ class MeshTree:
         self.nodes = wp.zeros(12 * slots, dtype=wp.float32, device=dev)
         self.kids = wp.zeros(2 * slots, dtype=wp.int32, device=dev)
         self.tris = wp.zeros(9 * n_faces, dtype=wp.float32, device=dev)
-        self._root = wp.zeros(2, dtype=wp.int32, device=dev)
-        self._leaf_max = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._info = wp.zeros(2, dtype=wp.int32, device=dev)  # the root, the largest leaf
         self.slots = slots
         self.refresh()
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
-                  inputs=[self.mesh.id, self.nodes.ptr, self.kids.ptr, self.tris.ptr, self._root, self._leaf_max])
-        root = self._root.numpy()
-        self.root = int(root[0])
+                  inputs=[self.mesh.id, self.nodes.ptr, self.kids.ptr, self.tris.ptr, self._info])
+        root, largest_leaf = (int(x) for x in self._info.numpy())
+        self.root = root
         # Warp's builder keeps to leaves of one triangle unless triangles cannot be told apart
-        # (equal centroids); a tree with a larger leaf is not copied: Warp's query serves it
-        self.usable = int(self._leaf_max.numpy()[0]) <= 1 and self.root >= 0
+        # (equal centroids); a tree with a larger leaf, or a leaf for a root, is not used:
+        # Warp's query serves it
+        self.usable = largest_leaf <= 1 and root >= 0
 
     def record(self) -> dict:
         """The instance record's fields for this tree."""
@@ -469,7 +469,6 @@ if (wp::mesh_query_ray(mid, o, d, t_max, t, u, v, sign, n, face)) {
 }
 return out;
 """
-
 
 
 @wp.func_native(_TREE_RAY)

@@ -65,7 +65,7 @@ class DeviceScene:
         rows: dict[str, list[dict]] = {k.table: [] for k in KINDS}
         ins: list[dict] = []
         self.meshes: list[wp.Mesh] = []
-        self.trees: list[MeshTree | None] = []  # each asset's CPU tree copy (None on CUDA)
+        trees: list[MeshTree | None] = []  # each asset's CPU tree copy (None on CUDA)
         asset_ids: dict[object, int] = {}
         normals: list[np.ndarray] = []
         nrm_offsets: list[int] = []
@@ -90,7 +90,7 @@ class DeviceScene:
                             tree = MeshTree(mesh, len(f32)) if dev.is_cpu else None
                             self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
                         mesh, vn, tree = self.assets[key]
-                        self.trees.append(tree)
+                        trees.append(tree)
                         asset_ids[key] = len(self.meshes)
                         self.meshes.append(mesh)
                         normals.append(vn)
@@ -106,7 +106,7 @@ class DeviceScene:
                                     pos1=t1.translate, rot1=same_hemisphere(t1.quaternion(), q0), scl1=t1.scale,
                                     mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a],
                                     olo=(0.0, 0.0, 0.0), ohi=(0.0, 0.0, 0.0), lo=(0.0, 0.0, 0.0), hi=(0.0, 0.0, 0.0),
-                                    **(self.trees[a].record() if self.trees[a] is not None else NO_TREE)))
+                                    **(trees[a].record() if trees[a] is not None else NO_TREE)))
                 else:
                     kind = BY_CLASS[type(s)]
                     self.shape_ids.append((kind.tag, len(rows[kind.table])))
