@@ -20,7 +20,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .accel import StackDist, StackRefs, mesh_tree_ray, safe_inverse, slab
+from .accel import PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, mesh_tree_ray, packet_node, safe_inverse, slab
 from ._warp import build_once
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
@@ -34,14 +34,10 @@ from .records import (
 
 TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
-PACKET = 8  # camera rays of one pixel traced together through the analytic BVH (trace_packet)
-PACKET_MISS = 3.0e38  # a child's entry distance when no lane meets it
 # the fewest rays worth a packet: each node costs a packet the 8 lanes' tests whatever the lanes
 # in use, so fewer rays go one by one (peer scene (a), time per sample against one by one, 1 worker:
 # 1 ray 2.24x, 2 1.27x, 3 1.16x, 4 1.00x, 5 0.91x, 6 0.84x, 8 0.76x)
 PACKET_MIN = 5
-PacketF = wp.types.vector(length=PACKET, dtype=wp.float32)
-PacketI = wp.types.vector(length=PACKET, dtype=wp.int32)
 
 
 @wp.struct
@@ -582,26 +578,20 @@ def make_trace(F: Features) -> SimpleNamespace:
                 continue
             ref = refs[sp]
             if ref >= 0:
-                nd = scene.bvh_nodes[ref]
-                e0 = float(PACKET_MISS)
-                e1 = float(PACKET_MISS)
-                for k in range(PACKET):
-                    o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                    inv = wp.vec3(inv_x[k], inv_y[k], inv_z[k])
-                    s0 = slab(o, inv, nd.lo0, nd.hi0)
-                    s1 = slab(o, inv, nd.lo1, nd.hi1)
-                    # the scalar traversal's test, lane by lane (an inactive lane's best < 0 fails it)
-                    h0 = s0[0] <= s0[1] and s0[1] >= 0.0 and s0[0] <= pk.best[k]
-                    h1 = s1[0] <= s1[1] and s1[1] >= 0.0 and s1[0] <= pk.best[k]
-                    e0 = wp.where(h0, wp.min(e0, s0[0]), e0)
-                    e1 = wp.where(h1, wp.min(e1, s1[0]), e1)
-                near = nd.c0
-                far = nd.c1
+                # the scalar traversal's test, lane by lane (an inactive lane's best < 0 fails it):
+                # per child, the least entry over the lanes that meet it (PACKET_MISS: none)
+                ee = packet_node(scene.bvh_nodes, ref, pk.ox, pk.oy, pk.oz, inv_x, inv_y, inv_z, pk.best)
+                e0 = ee[0]
+                e1 = ee[1]
+                c0 = scene.bvh_nodes[ref].c0
+                c1 = scene.bvh_nodes[ref].c1
+                near = c0
+                far = c1
                 t_near = e0
                 t_far = e1
                 if e1 < e0:
-                    near = nd.c1
-                    far = nd.c0
+                    near = c1
+                    far = c0
                     t_near = e1
                     t_far = e0
                 if t_far < PACKET_MISS:
