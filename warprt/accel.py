@@ -475,7 +475,8 @@ if (nodes != 0) {
         if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) return;
         const float rcp = 1.0f / det;
         const float tt = T * rcp;
-        if (tt < best && tt >= 0.0f) { best = tt; bu = U * rcp; bv = V * rcp; hitp = k; }
+        // an exact tie goes to the lower leaf, whatever the order the leaves are met in
+        if (tt >= 0.0f && (tt < best || (tt == best && k < hitp))) { best = tt; bu = U * rcp; bv = V * rcp; hitp = k; }
     };
     while (true) {
         const float* nd = N + 12 * node;
@@ -490,12 +491,12 @@ if (nodes != 0) {
         float n1 = fmaxf(fmaxf(fminf(c0x, d0x), fminf(c1y, d1y)), fmaxf(fminf(c2z, d2z), 0.0f));
         float f1 = fminf(fminf(fmaxf(c0x, d0x), fmaxf(c1y, d1y)), fmaxf(c2z, d2z));
         int k0 = C[2 * node], k1 = C[2 * node + 1];
-        bool h0 = n0 <= f0 * 1.0000004f && n0 < best;
-        bool h1 = n1 <= f1 * 1.0000004f && n1 < best;
+        bool h0 = n0 <= f0 * 1.0000004f && n0 <= best;
+        bool h1 = n1 <= f1 * 1.0000004f && n1 <= best;
         if (h0 && k0 < 0) { tri_test(-k0 - 1); h0 = false; }
         if (h1 && k1 < 0) { tri_test(-k1 - 1); h1 = false; }
-        h0 = h0 && n0 < best;
-        h1 = h1 && n1 < best;
+        h0 = h0 && n0 <= best;
+        h1 = h1 && n1 <= best;
         if (h0 && h1) {
             if (sp == 80) { sp = -1; break; }  // a tree this deep: Warp's query below takes the ray
             bool first0 = n0 <= n1;
@@ -510,7 +511,7 @@ if (nodes != 0) {
         bool found = false;
         while (sp > 0) {
             --sp;
-            if (st[sp] < best) { node = sn[sp]; found = true; break; }
+            if (st[sp] <= best) { node = sn[sp]; found = true; break; }
         }
         if (!found) break;
     }
@@ -537,4 +538,156 @@ return out;
 def mesh_tree_ray(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int,
                   o: wp.vec3, d: wp.vec3, t_max: float) -> MeshRayHit:
     """The nearest triangle of mesh ``mid`` along (o, d) in [0, t_max] (see above)."""
+    ...
+
+
+# A packet of up to 8 rays (one pixel's camera rays, in the mesh's object space) through the same
+# tree copy together: each node's two boxes tested for the 8 lanes as clang vectors, a child
+# opened while any lane meets it no later than that lane's nearest hit, the nearer child (least
+# entry over the lanes) first; a leaf's triangle tested for each lane that meets its box, by the
+# scalar query's watertight test with that lane's shear. A lane's result is the scalar query's:
+# the nearest triangle, an exact tie going to the lower leaf in both, so the order the packet
+# meets the leaves in changes nothing. Lanes with t_max < 0 take no part. Without the copy (CUDA,
+# or a tree it cannot take) or past 80 stacked nodes it returns 0 and the caller sends each lane
+# through ``mesh_tree_ray`` alone.
+_TREE_PACKET = r"""
+bool alone = true;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+if (nodes != 0) {
+    typedef float v8 __attribute__((ext_vector_type(8)));
+    typedef int i8 __attribute__((ext_vector_type(8)));
+    const float* N = (const float*)nodes;
+    const int* C = (const int*)kids;
+    const float* TR = (const float*)tris;
+    v8 Ox, Oy, Oz, Dx, Dy, Dz, Bv;
+    __builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+    __builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+    __builtin_memcpy(&Bv, &t_max, 32);
+    const v8 Ix = 1.0f / (Dx == 0.0f ? (v8)(1e-20f) : Dx), Iy = 1.0f / (Dy == 0.0f ? (v8)(1e-20f) : Dy),
+             Iz = 1.0f / (Dz == 0.0f ? (v8)(1e-20f) : Dz);
+    int KX[8], KY[8], KZ[8], bh[8];
+    float SX[8], SY[8], SZ[8], OKX[8], OKY[8], OKZ[8], bt[8], bu[8], bv[8];
+    for (int l = 0; l < 8; ++l) {
+        const float dxl = Dx[l], dyl = Dy[l], dzl = Dz[l];
+        int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
+        int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+        const float dk[3] = {dxl, dyl, dzl};
+        if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+        KX[l] = kx; KY[l] = ky; KZ[l] = kz;
+        SX[l] = dk[kx] / dk[kz]; SY[l] = dk[ky] / dk[kz]; SZ[l] = 1.0f / dk[kz];
+        const float okk[3] = {Ox[l], Oy[l], Oz[l]};
+        OKX[l] = okk[kx]; OKY[l] = okk[ky]; OKZ[l] = okk[kz];
+        bt[l] = Bv[l]; bu[l] = 0.0f; bv[l] = 0.0f; bh[l] = -1;
+    }
+    auto tri_test = [&](int k, int l) {
+        const int kx = KX[l], ky = KY[l], kz = KZ[l];
+        const float Sx = SX[l], Sy = SY[l], Sz = SZ[l], okx = OKX[l], oky = OKY[l], okz = OKZ[l];
+        const float* t = TR + 9 * k;
+        const float Ax0 = t[kx] - okx, Ay0 = t[ky] - oky, Az0 = t[kz] - okz;
+        const float Bx0 = t[3 + kx] - okx, By0 = t[3 + ky] - oky, Bz0 = t[3 + kz] - okz;
+        const float Cx0 = t[6 + kx] - okx, Cy0 = t[6 + ky] - oky, Cz0 = t[6 + kz] - okz;
+        const float Ax = Ax0 - Sx * Az0, Ay = Ay0 - Sy * Az0;
+        const float Bx = Bx0 - Sx * Bz0, By = By0 - Sy * Bz0;
+        const float Cx = Cx0 - Sx * Cz0, Cy = Cy0 - Sy * Cz0;
+        float U = wp::diff_product(Cx, By, Cy, Bx), V = wp::diff_product(Ax, Cy, Ay, Cx), W = wp::diff_product(Bx, Ay, By, Ax);
+        if (U == 0.0f || V == 0.0f || W == 0.0f) {
+            U = (float)((double)Cx * By - (double)Cy * Bx);
+            V = (float)((double)Ax * Cy - (double)Ay * Cx);
+            W = (float)((double)Bx * Ay - (double)By * Ax);
+        }
+        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return;
+        const float det = U + V + W;
+        if (det == 0.0f) return;
+        const float T = U * (Sz * Az0) + V * (Sz * Bz0) + W * (Sz * Cz0);
+        if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) return;
+        const float rcp = 1.0f / det;
+        const float tt = T * rcp;
+        if (tt >= 0.0f && (tt < bt[l] || (tt == bt[l] && k < bh[l]))) { bt[l] = tt; bu[l] = U * rcp; bv[l] = V * rcp; bh[l] = k; }
+    };
+    int sn[80];
+    float st[80];
+    int sp = 0;
+    int node = root;
+    float far_all = -1.0f;  // the farthest any lane still searches
+    for (int l = 0; l < 8; ++l) far_all = bt[l] > far_all ? bt[l] : far_all;
+    bool overflow = false;
+    while (far_all >= 0.0f) {
+        const float* nd = N + 12 * node;
+        float e[2];
+        unsigned m[2];
+        for (int c = 0; c < 2; ++c) {
+            const float* b = nd + 6 * c;
+            const v8 ax = (b[0] - Ox) * Ix, ay = (b[1] - Oy) * Iy, az = (b[2] - Oz) * Iz;
+            const v8 bx = (b[3] - Ox) * Ix, by = (b[4] - Oy) * Iy, bz = (b[5] - Oz) * Iz;
+            const v8 lx = ax < bx ? ax : bx, ly = ay < by ? ay : by, lz = az < bz ? az : bz;
+            const v8 gx = ax > bx ? ax : bx, gy = ay > by ? ay : by, gz = az > bz ? az : bz;
+            const v8 l0 = lx > ly ? lx : ly, lz0 = lz > 0.0f ? lz : (v8)(0.0f);
+            const v8 tn = l0 > lz0 ? l0 : lz0;
+            const v8 g0 = gx < gy ? gx : gy;
+            const v8 tf = g0 < gz ? g0 : gz;
+            const i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
+            const v8 en = h ? tn : (v8)(3.0e38f);
+            float mm = 3.0e38f;
+            unsigned mk = 0;
+            for (int l = 0; l < 8; ++l) { mm = en[l] < mm ? en[l] : mm; mk |= h[l] ? (1u << l) : 0u; }
+            e[c] = mm;
+            m[c] = mk;
+        }
+        const int k0 = C[2 * node], k1 = C[2 * node + 1];
+        bool changed = false;
+        if (m[0] && k0 < 0) {
+            for (unsigned q = m[0]; q; q &= q - 1) tri_test(-k0 - 1, __builtin_ctz(q));
+            m[0] = 0; changed = true;
+        }
+        if (m[1] && k1 < 0) {
+            for (unsigned q = m[1]; q; q &= q - 1) tri_test(-k1 - 1, __builtin_ctz(q));
+            m[1] = 0; changed = true;
+        }
+        if (changed) {
+            __builtin_memcpy(&Bv, bt, 32);
+            far_all = -1.0f;
+            for (int l = 0; l < 8; ++l) far_all = bt[l] > far_all ? bt[l] : far_all;
+        }
+        const bool h0 = m[0] && e[0] <= far_all, h1 = m[1] && e[1] <= far_all;
+        if (h0 && h1) {
+            if (sp == 80) { overflow = true; break; }
+            const bool first0 = e[0] <= e[1];
+            sn[sp] = first0 ? k1 : k0;
+            st[sp] = first0 ? e[1] : e[0];
+            ++sp;
+            node = first0 ? k0 : k1;
+            continue;
+        }
+        if (h0) { node = k0; continue; }
+        if (h1) { node = k1; continue; }
+        bool found = false;
+        while (sp > 0) {
+            --sp;
+            if (st[sp] <= far_all) { node = sn[sp]; found = true; break; }
+        }
+        if (!found) break;
+    }
+    if (!overflow) {
+        alone = false;
+        for (int l = 0; l < 8; ++l) {
+            if (bh[l] >= 0) {
+                t[l] = bt[l]; u[l] = bu[l]; v[l] = bv[l];
+                face[l] = wp::mesh_get(mid).bvh.primitive_indices[bh[l]];
+            } else {
+                t[l] = -1.0f; face[l] = -1;
+            }
+        }
+    }
+}
+#endif
+return alone ? 0 : 1;
+"""
+
+
+@wp.func_native(_TREE_PACKET)
+def mesh_tree_packet(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int,
+                     ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF,
+                     t: wp.ref[PacketF], u: wp.ref[PacketF], v: wp.ref[PacketF], face: wp.ref[PacketI]) -> int:
+    """Each lane's nearest triangle of mesh ``mid`` in [0, t_max] (t -1 and face -1 for none; see
+    above); 0 where the lanes must go one by one instead (``mesh_tree_ray``), 1 when done."""
     ...

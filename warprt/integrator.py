@@ -35,7 +35,7 @@ from .lights import make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
-from .trace import PACKET, PACKET_MIN, CameraPacket, Hit, make_trace
+from .trace import PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, make_trace
 
 STACK_SIZE = 16
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2  # dimension keys of the camera sample
@@ -74,6 +74,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
     closest_hit = trace.closest_hit
     trace_packet = trace.trace_packet
     finish_hit = trace.finish_hit
+    mesh_packet = trace.mesh_packet
+    finish_packet_lane = trace.finish_packet_lane
+    packets = F.analytic_bvh or F.meshes  # camera rays in packets through the analytic BVH or the meshes
     stack_size = STACK_SIZE if F.secondary else 1  # only the camera ray without secondary rays
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
@@ -119,17 +122,21 @@ def kernels_for(F: Features) -> SimpleNamespace:
             dropped = film.overflow[pixel]
         stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
-        # with a BVH over the analytic shapes, the camera rays of PACKET_MIN to PACKET samples go
-        # through it together (trace_packet: the same hits as one by one, fewer node visits per ray)
-        bvh = scene.bvh_root >= 0
+        # with a BVH over the analytic shapes or with meshes, the camera rays of PACKET_MIN to
+        # PACKET samples go through them together (trace_packet, mesh_packet: the same hits as
+        # one by one, fewer node visits per ray)
+        tree = scene.bvh_root >= 0
+        if wp.static(F.meshes):
+            tree = tree or scene.n_inst > 0
         base = s0
         while base < s_end:
-            lanes = int(1)  # without F.analytic_bvh: one sample at a time, as ever
+            lanes = int(1)  # without trees: one sample at a time, as ever
             packed = False
             pk = CameraPacket()
-            if wp.static(F.analytic_bvh):
+            mp = MeshPacket()
+            if wp.static(packets):
                 lanes = wp.min(PACKET, s_end - base)
-                packed = bvh and lanes >= PACKET_MIN
+                packed = tree and lanes >= PACKET_MIN
                 for k in range(lanes):
                     cs = camera_sample(cam, params, pkey, base + k, px, py)
                     pk.ox[k] = cs.o[0]
@@ -146,11 +153,13 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     for k in range(lanes, PACKET):
                         pk.best[k] = -1.0  # an unused lane: no box is entered for it
                     pk = trace_packet(scene, pk, params.t_min, lanes)
+                    if wp.static(F.meshes):
+                        mp = mesh_packet(scene, pk, params.t_min, lanes)
             for k in range(lanes):
                 s = base + k
                 first = RayEntry()
                 time = float(0.0)
-                if wp.static(F.analytic_bvh):
+                if wp.static(packets):
                     time = pk.time[k]
                     first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
                     first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
@@ -175,10 +184,14 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         t_lo = params.t_min
                         t_hi = params.t_max
                     h = Hit()
-                    if wp.static(F.analytic_bvh):
+                    if wp.static(packets):
                         if e.depth == 0 and packed:
-                            # the packet found this camera ray's nearest analytic hit
-                            h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
+                            # the packet found this camera ray's nearest analytic hit (and mesh hit)
+                            if wp.static(F.meshes):
+                                h = finish_packet_lane(scene, e.o, e.d, time, pk.best[k], pk.kind[k], pk.index[k],
+                                                       mp, k)
+                            else:
+                                h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
                         else:
                             h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                     else:

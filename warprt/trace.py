@@ -20,7 +20,10 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from .accel import PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, mesh_tree_ray, packet_node, safe_inverse, slab
+from .accel import (
+    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, mesh_tree_packet, mesh_tree_ray, packet_node,
+    safe_inverse, slab,
+)
 from ._warp import build_once
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
@@ -68,6 +71,27 @@ class Hit:
     ns: wp.vec3  # unit shading normal (not flipped)
     mag: wp.vec3  # per-component magnitude bound of the coordinates p was computed from (spawn offsets)
     mat: int
+
+
+@wp.struct
+class Nearest:
+    """The nearest analytic hit so far: its t (the ray's t_max before any), kind and row."""
+
+    t: float
+    kind: int
+    index: int
+
+
+@wp.struct
+class MeshPacket:
+    """Per lane of a camera packet, the nearest mesh hit (``mesh_nearest``'s): instance (-1 for
+    none), t, face and barycentrics."""
+
+    inst: PacketI
+    t: PacketF
+    face: PacketI
+    u: PacketF
+    v: PacketF
 
 
 @wp.struct
@@ -485,6 +509,85 @@ def make_trace(F: Features) -> SimpleNamespace:
         return r
 
     @wp.func
+    def mesh_packet(scene: SceneData, pk: CameraPacket, t_min: float, lanes: int) -> MeshPacket:
+        """``mesh_nearest`` for the first ``lanes`` rays of a camera packet at once, each bounded as
+        ``finish_hit`` bounds it (its analytic hit, less the TIE band): per instance, the lanes
+        whose ray meets its box go through its tree together (``accel.mesh_tree_packet``, the
+        same nearest triangle per lane as alone). A lane whose triangle is the one its ray leaves
+        (or at t = 0), or a packet the tree cannot take, goes through ``mesh_first_hit`` alone."""
+        mp = MeshPacket()
+        bound = PacketF()  # each lane's search bound: its nearest hit so far
+        for k in range(PACKET):
+            mp.inst[k] = -1
+            bound[k] = -1.0
+        for k in range(lanes):
+            bound[k] = pk.best[k]
+            if pk.kind[k] != KIND_NONE:
+                bound[k] = pk.best[k] * (1.0 - TIE)
+        for i in range(scene.n_inst):
+            ox = PacketF()
+            oy = PacketF()
+            oz = PacketF()
+            dx = PacketF()
+            dy = PacketF()
+            dz = PacketF()
+            reach = PacketF()  # the lane's object-space t_max, < 0 for a lane that misses the box
+            active = int(0)
+            for k in range(PACKET):
+                reach[k] = -1.0
+            for k in range(lanes):
+                o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
+                if ray_box(o, inv_d, scene.insts[i].lo, scene.insts[i].hi, t_min, bound[k]):
+                    pose = instance_pose(scene, i, pk.time[k])
+                    so = to_object(pose, o + d * t_min)
+                    sd = dir_to_object(pose, d)
+                    ox[k] = so[0]
+                    oy[k] = so[1]
+                    oz[k] = so[2]
+                    dx[k] = sd[0]
+                    dy[k] = sd[1]
+                    dz[k] = sd[2]
+                    reach[k] = bound[k] - t_min
+                    active += 1
+            if active == 0:
+                continue
+            qt = PacketF()
+            qu = PacketF()
+            qv = PacketF()
+            qf = PacketI()
+            done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].tree_nodes, scene.insts[i].tree_kids,
+                                    scene.insts[i].tree_tris, scene.insts[i].tree_root, ox, oy, oz, dx, dy, dz,
+                                    reach, qt, qu, qv, qf)
+            for k in range(lanes):
+                if reach[k] < 0.0:
+                    continue
+                so = wp.vec3(ox[k], oy[k], oz[k])
+                sd = wp.vec3(dx[k], dy[k], dz[k])
+                q = MeshHit()
+                q.index = -1
+                if done != 0 and qt[k] < 0.0:
+                    continue  # no triangle: as mesh_first_hit's first query finds
+                if done != 0 and qt[k] > 0.0 and not leaves_face(scene.insts[i].mesh, qf[k], so, sd):
+                    q.index = 0
+                    q.t = qt[k]
+                    q.face = qf[k]
+                    q.u = qu[k]
+                    q.v = qv[k]
+                else:
+                    q = mesh_first_hit(scene.insts[i], so, sd, reach[k])
+                if q.index >= 0:
+                    if q.t + t_min < bound[k]:
+                        bound[k] = q.t + t_min
+                        mp.t[k] = bound[k]
+                        mp.inst[k] = i
+                        mp.face[k] = q.face
+                        mp.u[k] = q.u
+                        mp.v[k] = q.v
+        return mp
+
+    @wp.func
     def mesh_details(scene: SceneData, h_in: Hit, o: wp.vec3, d: wp.vec3, face: int, bu: float, bv: float,
                      time: float) -> Hit:
         """h_in with the point, normals and material of its mesh hit filled in.
@@ -547,6 +650,15 @@ def make_trace(F: Features) -> SimpleNamespace:
         one pixel share each node's load and the per-lane box tests (a fixed-length loop the
         C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0."""
         pk = pk_in
+        if scene.bvh_root < 0:
+            # no analytic BVH (a packet for the meshes' sake): the analytic shapes ray by ray
+            for k in range(lanes):
+                a = analytic_nearest(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]),
+                                     wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]), t_min, pk.best[k], pk.time[k])
+                pk.best[k] = a.t
+                pk.kind[k] = a.kind
+                pk.index[k] = a.index
+            return pk
         inv_x = PacketF()
         inv_y = PacketF()
         inv_z = PacketF()
@@ -625,8 +737,9 @@ def make_trace(F: Features) -> SimpleNamespace:
         return pk
 
     @wp.func(inline=True)
-    def closest_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> Hit:
-        """The nearest surface along (o, d) (unit d) in (t_min, t_max), refined onto its surface."""
+    def analytic_nearest(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float,
+                         time: float) -> Nearest:
+        """The nearest analytic shape along (o, d) (unit d) in (t_min, t_max): t, kind, row."""
         best = float(t_max)
         kind = int(KIND_NONE)
         index = int(-1)
@@ -728,7 +841,17 @@ def make_trace(F: Features) -> SimpleNamespace:
                             best = t
                             kind = k
                             index = i
-        return finish_hit(scene, o, d, t_min, time, best, kind, index)
+        r = Nearest()
+        r.t = best
+        r.kind = kind
+        r.index = index
+        return r
+
+    @wp.func(inline=True)
+    def closest_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float, time: float) -> Hit:
+        """The nearest surface along (o, d) (unit d) in (t_min, t_max), refined onto its surface."""
+        a = analytic_nearest(scene, o, d, t_min, t_max, time)
+        return finish_hit(scene, o, d, t_min, time, a.t, a.kind, a.index)
 
     @wp.func(inline=True)
     def finish_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, time: float, best_analytic: float,
@@ -758,7 +881,32 @@ def make_trace(F: Features) -> SimpleNamespace:
                     face = m.face
                     bu = m.u
                     bv = m.v
+        return refine_hit(scene, o, d, time, best, kind, index, face, bu, bv)
 
+    @wp.func(inline=True)
+    def finish_packet_lane(scene: SceneData, o: wp.vec3, d: wp.vec3, time: float, best_analytic: float,
+                           kind_analytic: int, index_analytic: int, mp: MeshPacket, k: int) -> Hit:
+        """``finish_hit`` for lane k of a camera packet whose mesh hits ``mesh_packet`` found."""
+        best = best_analytic
+        kind = kind_analytic
+        index = index_analytic
+        face = int(-1)
+        bu = float(0.0)
+        bv = float(0.0)
+        if wp.static(F.meshes):
+            if mp.inst[k] >= 0:
+                best = mp.t[k]
+                kind = KIND_MESH
+                index = mp.inst[k]
+                face = mp.face[k]
+                bu = mp.u[k]
+                bv = mp.v[k]
+        return refine_hit(scene, o, d, time, best, kind, index, face, bu, bv)
+
+    @wp.func(inline=True)
+    def refine_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, time: float, best: float, kind: int, index: int,
+                   face: int, bu: float, bv: float) -> Hit:
+        """The nearest hit (t, kind, row; a mesh's face and barycentrics) refined onto its surface."""
         h = Hit()
         h.t = -1.0
         h.kind = kind
@@ -926,6 +1074,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         return transmittance(scene, origin, to_t / dist, dist - stop_short, time)
 
     return SimpleNamespace(closest_hit=closest_hit, trace_packet=trace_packet, finish_hit=finish_hit,
+                           mesh_packet=mesh_packet, finish_packet_lane=finish_packet_lane,
                            transmittance=transmittance, shadow=shadow,
                            sphere_center=sphere_center, instance_pose=instance_pose, solid_pose=solid_pose,
                            solid_rec=solid_rec)
