@@ -426,6 +426,32 @@ NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0)
 # (each exact in a float32 for any face count Warp can index)
 MeshRayHit = wp.types.vector(length=5, dtype=wp.float32)
 
+# Woop, Benthin and Wald's watertight test of the triangle at leaf position k, as
+# wp::intersect_ray_tri_woop computes it once the ray's shear (kx, ky, kz, Sx, Sy, Sz and the
+# origin's sheared coordinates okx, oky, okz) is set: leaves tt, U, V and rcp (a miss returns)
+_WOOP = r"""
+        const float* t = TR + 9 * k;
+        const float Ax0 = t[kx] - okx, Ay0 = t[ky] - oky, Az0 = t[kz] - okz;
+        const float Bx0 = t[3 + kx] - okx, By0 = t[3 + ky] - oky, Bz0 = t[3 + kz] - okz;
+        const float Cx0 = t[6 + kx] - okx, Cy0 = t[6 + ky] - oky, Cz0 = t[6 + kz] - okz;
+        const float Ax = Ax0 - Sx * Az0, Ay = Ay0 - Sy * Az0;
+        const float Bx = Bx0 - Sx * Bz0, By = By0 - Sy * Bz0;
+        const float Cx = Cx0 - Sx * Cz0, Cy = Cy0 - Sy * Cz0;
+        float U = wp::diff_product(Cx, By, Cy, Bx), V = wp::diff_product(Ax, Cy, Ay, Cx), W = wp::diff_product(Bx, Ay, By, Ax);
+        if (U == 0.0f || V == 0.0f || W == 0.0f) {
+            U = (float)((double)Cx * By - (double)Cy * Bx);
+            V = (float)((double)Ax * Cy - (double)Ay * Cx);
+            W = (float)((double)Bx * Ay - (double)By * Ax);
+        }
+        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return;
+        const float det = U + V + W;
+        if (det == 0.0f) return;
+        const float T = U * (Sz * Az0) + V * (Sz * Bz0) + W * (Sz * Cz0);
+        if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) return;
+        const float rcp = 1.0f / det;
+        const float tt = T * rcp;
+"""
+
 _TREE_RAY = r"""
 wp::vec_t<5, wp::float32> out;
 out[0] = -1.0f;
@@ -455,26 +481,7 @@ if (nodes != 0) {
     const float okx = ok[kx], oky = ok[ky], okz = ok[kz];
     // the watertight test, as wp::intersect_ray_tri_woop computes it once the shear is set
     auto tri_test = [&](int k) {
-        const float* t = TR + 9 * k;
-        const float Ax0 = t[kx] - okx, Ay0 = t[ky] - oky, Az0 = t[kz] - okz;
-        const float Bx0 = t[3 + kx] - okx, By0 = t[3 + ky] - oky, Bz0 = t[3 + kz] - okz;
-        const float Cx0 = t[6 + kx] - okx, Cy0 = t[6 + ky] - oky, Cz0 = t[6 + kz] - okz;
-        const float Ax = Ax0 - Sx * Az0, Ay = Ay0 - Sy * Az0;
-        const float Bx = Bx0 - Sx * Bz0, By = By0 - Sy * Bz0;
-        const float Cx = Cx0 - Sx * Cz0, Cy = Cy0 - Sy * Cz0;
-        float U = wp::diff_product(Cx, By, Cy, Bx), V = wp::diff_product(Ax, Cy, Ay, Cx), W = wp::diff_product(Bx, Ay, By, Ax);
-        if (U == 0.0f || V == 0.0f || W == 0.0f) {
-            U = (float)((double)Cx * By - (double)Cy * Bx);
-            V = (float)((double)Ax * Cy - (double)Ay * Cx);
-            W = (float)((double)Bx * Ay - (double)By * Ax);
-        }
-        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return;
-        const float det = U + V + W;
-        if (det == 0.0f) return;
-        const float T = U * (Sz * Az0) + V * (Sz * Bz0) + W * (Sz * Cz0);
-        if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) return;
-        const float rcp = 1.0f / det;
-        const float tt = T * rcp;
+@WOOP@
         // an exact tie goes to the lower leaf, whatever the order the leaves are met in
         if (tt >= 0.0f && (tt < best || (tt == best && k < hitp))) { best = tt; bu = U * rcp; bv = V * rcp; hitp = k; }
     };
@@ -531,7 +538,7 @@ if (wp::mesh_query_ray(mid, o, d, t_max, t, u, v, sign, n, face)) {
     out[0] = t; out[1] = u; out[2] = v; out[3] = (float)(face >> 12); out[4] = (float)(face & 4095);
 }
 return out;
-"""
+""".replace("@WOOP@\n", _WOOP.lstrip("\n"))
 
 
 @wp.func_native(_TREE_RAY)
@@ -582,26 +589,7 @@ if (nodes != 0) {
     auto tri_test = [&](int k, int l) {
         const int kx = KX[l], ky = KY[l], kz = KZ[l];
         const float Sx = SX[l], Sy = SY[l], Sz = SZ[l], okx = OKX[l], oky = OKY[l], okz = OKZ[l];
-        const float* t = TR + 9 * k;
-        const float Ax0 = t[kx] - okx, Ay0 = t[ky] - oky, Az0 = t[kz] - okz;
-        const float Bx0 = t[3 + kx] - okx, By0 = t[3 + ky] - oky, Bz0 = t[3 + kz] - okz;
-        const float Cx0 = t[6 + kx] - okx, Cy0 = t[6 + ky] - oky, Cz0 = t[6 + kz] - okz;
-        const float Ax = Ax0 - Sx * Az0, Ay = Ay0 - Sy * Az0;
-        const float Bx = Bx0 - Sx * Bz0, By = By0 - Sy * Bz0;
-        const float Cx = Cx0 - Sx * Cz0, Cy = Cy0 - Sy * Cz0;
-        float U = wp::diff_product(Cx, By, Cy, Bx), V = wp::diff_product(Ax, Cy, Ay, Cx), W = wp::diff_product(Bx, Ay, By, Ax);
-        if (U == 0.0f || V == 0.0f || W == 0.0f) {
-            U = (float)((double)Cx * By - (double)Cy * Bx);
-            V = (float)((double)Ax * Cy - (double)Ay * Cx);
-            W = (float)((double)Bx * Ay - (double)By * Ax);
-        }
-        if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f)) return;
-        const float det = U + V + W;
-        if (det == 0.0f) return;
-        const float T = U * (Sz * Az0) + V * (Sz * Bz0) + W * (Sz * Cz0);
-        if (wp::xorf(T, wp::sign_mask(det)) < 0.0f) return;
-        const float rcp = 1.0f / det;
-        const float tt = T * rcp;
+@WOOP@
         if (tt >= 0.0f && (tt < bt[l] || (tt == bt[l] && k < bh[l]))) { bt[l] = tt; bu[l] = U * rcp; bv[l] = V * rcp; bh[l] = k; }
     };
     int sn[80];
@@ -681,7 +669,7 @@ if (nodes != 0) {
 }
 #endif
 return alone ? 0 : 1;
-"""
+""".replace("@WOOP@\n", _WOOP.lstrip("\n"))
 
 
 @wp.func_native(_TREE_PACKET)
