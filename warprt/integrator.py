@@ -35,7 +35,7 @@ from .lights import make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
-from .trace import PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, make_trace
+from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, make_trace
 
 STACK_SIZE = 16
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2  # dimension keys of the camera sample
@@ -125,18 +125,23 @@ def kernels_for(F: Features) -> SimpleNamespace:
         # with a BVH over the analytic shapes or with meshes, the camera rays of PACKET_MIN to
         # PACKET samples go through them together (trace_packet, mesh_packet: the same hits as
         # one by one, fewer node visits per ray)
-        tree = scene.bvh_root >= 0
+        bvh = scene.bvh_root >= 0
+        meshes = False
         if wp.static(F.meshes):
-            tree = tree or scene.n_inst > 0
+            meshes = scene.n_inst > 0
         base = s0
         while base < s_end:
             lanes = int(1)  # without trees: one sample at a time, as ever
             packed = False
             pk = CameraPacket()
             mp = MeshPacket()
+            mesh_packed = False
             if wp.static(packets):
                 lanes = wp.min(PACKET, s_end - base)
-                packed = tree and lanes >= PACKET_MIN
+                packed = bvh and lanes >= PACKET_MIN
+                if wp.static(F.meshes):
+                    mesh_packed = meshes and lanes >= MESH_PACKET_MIN
+                    packed = packed or mesh_packed
                 for k in range(lanes):
                     cs = camera_sample(cam, params, pkey, base + k, px, py)
                     pk.ox[k] = cs.o[0]
@@ -154,7 +159,8 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         pk.best[k] = -1.0  # an unused lane: no box is entered for it
                     pk = trace_packet(scene, pk, params.t_min, lanes)
                     if wp.static(F.meshes):
-                        mp = mesh_packet(scene, pk, params.t_min, lanes)
+                        if mesh_packed:
+                            mp = mesh_packet(scene, pk, params.t_min, lanes)
             for k in range(lanes):
                 s = base + k
                 first = RayEntry()
@@ -187,7 +193,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     if wp.static(packets):
                         if e.depth == 0 and packed:
                             # the packet found this camera ray's nearest analytic hit (and mesh hit)
-                            if wp.static(F.meshes):
+                            if mesh_packed:
                                 h = finish_packet_lane(scene, e.o, e.d, time, pk.best[k], pk.kind[k], pk.index[k],
                                                        mp, k)
                             else:

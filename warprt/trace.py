@@ -37,10 +37,14 @@ from .records import (
 
 TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
-# the fewest rays worth a packet: each node costs a packet the 8 lanes' tests whatever the lanes
-# in use, so fewer rays go one by one (peer scene (a), time per sample against one by one, 1 worker:
-# 1 ray 2.24x, 2 1.27x, 3 1.16x, 4 1.00x, 5 0.91x, 6 0.84x, 8 0.76x)
-PACKET_MIN = 5
+# the fewest rays worth a packet through the analytic BVH: each node costs a packet the 8 lanes'
+# tests whatever the lanes in use, so fewer rays go one by one (peer scene (a), time per sample
+# against one by one, 1 worker, with the node tests as clang vectors (accel.packet_node): 2 rays
+# 1.00-1.01x, 3 0.80x, 4 0.69-0.70x; written per lane in Warp's language the break-even was 4)
+PACKET_MIN = 3
+# the fewest camera rays worth a packet through the meshes (mesh_packet; peer scenes (d) and (e):
+# 3 rays 1.02x and 1.24x, 4 rays 0.93x and 1.01x the time one by one)
+MESH_PACKET_MIN = 5
 
 
 @wp.struct
