@@ -113,3 +113,84 @@ def test_closest_hits_through_the_tree_match_a_brute_force(device):
     hit = sure & (k_ref >= 0)
     assert hit.sum() > 500
     np.testing.assert_allclose(hits["t"][hit], t_ref[hit], rtol=2e-6, atol=2e-6)
+
+
+def test_the_packet_node_test_lane_by_lane_equals_its_vector_form():
+    """``accel.packet_node`` runs a packet's 8 lanes as clang vectors on the CPU and lane by lane
+    where that is not available (CUDA). Both branches, compiled here on the CPU, give the same
+    entries bit for bit as a float32 numpy slab test over random boxes and rays: origins inside
+    boxes, axis-aligned directions (1/d of a zero component as ``safe_inverse`` makes it),
+    lanes whose nearest hit is before the box, and unused lanes (nearest hit < 0)."""
+    import warp as wp
+
+    rng = np.random.default_rng(7)
+    n_nodes, n = 64, 4096
+    lo = rng.uniform(-2, 1, (n_nodes, 2, 3)).astype(np.float32)
+    hi = (lo + rng.uniform(0.01, 2, (n_nodes, 2, 3))).astype(np.float32)
+    rec = np.zeros((n_nodes, 14), np.float32)
+    rec[:, 0:3], rec[:, 3:6], rec[:, 6:9], rec[:, 9:12] = lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]
+    ref = rng.integers(0, n_nodes, n).astype(np.int32)
+    o = rng.uniform(-3, 3, (n, 8, 3)).astype(np.float32)
+    # most lanes aimed at a point of one of the node's boxes (a pixel's rays meet the same boxes)
+    child = rng.integers(0, 2, (n, 8))
+    aim = lo[ref[:, None], child] + rng.random((n, 8, 3)) * (hi[ref[:, None], child] - lo[ref[:, None], child])
+    d = np.where(rng.random((n, 8, 1)) < 0.7, aim - o, rng.normal(size=(n, 8, 3)))
+    axis = rng.random((n, 8)) < 0.1
+    d[axis] = np.eye(3)[rng.integers(0, 3, axis.sum())] * rng.choice([-1, 1], (axis.sum(), 1))
+    d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    inv = np.float32(1.0) / np.where(d == 0, np.float32(1e-20), d)
+    best = rng.uniform(0.5, 6, (n, 8)).astype(np.float32)
+    best[rng.random((n, 8)) < 0.15] = -1.0  # unused lanes
+
+    # the float32 reference: the scalar traversal's slab test and conditions, lane by lane
+    b = rec[ref]  # (n, 14)
+    want = np.empty((n, 2), np.float32)
+    for c in range(2):
+        lo_c, hi_c = b[:, None, 6 * c:6 * c + 3], b[:, None, 6 * c + 3:6 * c + 6]
+        a_, b_ = (lo_c - o) * inv, (hi_c - o) * inv
+        lesser, greater = np.where(a_ < b_, a_, b_), np.where(a_ > b_, a_, b_)
+        t_in = np.where(lesser[..., 0] > lesser[..., 1], lesser[..., 0], lesser[..., 1])
+        t_in = np.where(t_in > lesser[..., 2], t_in, lesser[..., 2])
+        t_out = np.where(greater[..., 0] < greater[..., 1], greater[..., 0], greater[..., 1])
+        t_out = np.where(t_out < greater[..., 2], t_out, greater[..., 2])
+        hit = (t_in <= t_out) & (t_out >= 0) & (t_in <= best)
+        want[:, c] = np.where(hit, t_in, np.float32(3.0e38)).min(axis=1)
+    assert (want < 3.0e38).mean() > 0.3 and (want == np.float32(3.0e38)).any()
+
+    lane_by_lane = wp.func_native(accel._PACKET_NODE.replace(
+        "#if defined(__clang__) && !defined(__CUDA_ARCH__)", "#if 0"))(accel.packet_node.func)
+    table = np.zeros(n_nodes, dtype=accel.BvhNode.numpy_dtype())
+    for k, f in enumerate(("lo0", "hi0", "lo1", "hi1")):
+        table[f] = rec[:, 3 * k:3 * k + 3]
+    nodes = wp.array(table, dtype=accel.BvhNode, device="cpu")
+    out = {}
+    for name, fn in (("vectors", accel.packet_node), ("lanes", lane_by_lane)):
+        @wp.kernel(enable_backward=False, module="unique")
+        def k(nodes: wp.array(dtype=accel.BvhNode), refs: wp.array(dtype=int), o: wp.array(dtype=wp.vec3, ndim=2),
+              inv: wp.array(dtype=wp.vec3, ndim=2), best: wp.array(dtype=float, ndim=2), out: wp.array(dtype=wp.vec2)):
+            i = wp.tid()
+            ox = accel.PacketF()
+            oy = accel.PacketF()
+            oz = accel.PacketF()
+            ix = accel.PacketF()
+            iy = accel.PacketF()
+            iz = accel.PacketF()
+            bb = accel.PacketF()
+            for l in range(accel.PACKET):
+                ox[l] = o[i, l][0]
+                oy[l] = o[i, l][1]
+                oz[l] = o[i, l][2]
+                ix[l] = inv[i, l][0]
+                iy[l] = inv[i, l][1]
+                iz[l] = inv[i, l][2]
+                bb[l] = best[i, l]
+            out[i] = fn(nodes, refs[i], ox, oy, oz, ix, iy, iz, bb)
+
+        res = wp.zeros(n, dtype=wp.vec2, device="cpu")
+        wp.launch(k, dim=n, device="cpu", inputs=[
+            nodes,
+            wp.array(ref, dtype=int, device="cpu"), wp.array(o, dtype=wp.vec3, device="cpu"),
+            wp.array(inv, dtype=wp.vec3, device="cpu"), wp.array(best, dtype=float, device="cpu"), res])
+        out[name] = res.numpy()
+    np.testing.assert_array_equal(out["vectors"], want)
+    np.testing.assert_array_equal(out["lanes"], want)
