@@ -76,7 +76,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
     finish_hit = trace.finish_hit
     mesh_packet = trace.mesh_packet
     finish_packet_lane = trace.finish_packet_lane
-    packets = F.analytic_bvh or F.meshes  # camera rays in packets through the analytic BVH or the meshes
+    packets = F.camera_packets
     stack_size = STACK_SIZE if F.secondary else 1  # only the camera ray without secondary rays
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct

@@ -44,6 +44,11 @@ class Features:
         return Features(**{f.name: getattr(self, f.name) or getattr(other, f.name) for f in fields(self)})
 
     @property
+    def camera_packets(self) -> bool:
+        """Whether camera rays go in packets (through the analytic BVH or the meshes)."""
+        return self.analytic_bvh or self.meshes
+
+    @property
     def key(self) -> str:
         on = [f.name for f in fields(self) if getattr(self, f.name)]
         return "+".join(on) if on else "basic"

@@ -495,7 +495,7 @@ class Renderer:
                 size = max(1, int(np.searchsorted(work_at, goal, side="right")) - 1 - done)
                 # with camera-ray packets, a pass short of the end takes whole packets (the
                 # integrator takes a pixel's samples PACKET at a time from the pass's first on)
-                if (self.features.analytic_bvh or self.features.meshes) and done + size < spp and size > PACKET:
+                if self.features.camera_packets and done + size < spp and size > PACKET:
                     size -= size % PACKET
             else:
                 size = 1  # the renderer's first pass: one sample, to time one

@@ -521,6 +521,9 @@ def make_trace(F: Features) -> SimpleNamespace:
         (or at t = 0), or a packet the tree cannot take, goes through ``mesh_first_hit`` alone."""
         mp = MeshPacket()
         bound = PacketF()  # each lane's search bound: its nearest hit so far
+        inv_x = PacketF()  # each lane's 1/d, for the instance boxes
+        inv_y = PacketF()
+        inv_z = PacketF()
         for k in range(PACKET):
             mp.inst[k] = -1
             bound[k] = -1.0
@@ -528,6 +531,10 @@ def make_trace(F: Features) -> SimpleNamespace:
             bound[k] = pk.best[k]
             if pk.kind[k] != KIND_NONE:
                 bound[k] = pk.best[k] * (1.0 - TIE)
+            inv = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]))
+            inv_x[k] = inv[0]
+            inv_y[k] = inv[1]
+            inv_z[k] = inv[2]
         for i in range(scene.n_inst):
             ox = PacketF()
             oy = PacketF()
@@ -542,7 +549,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             for k in range(lanes):
                 o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
                 d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
-                inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
+                inv_d = wp.vec3(inv_x[k], inv_y[k], inv_z[k])
                 if ray_box(o, inv_d, scene.insts[i].lo, scene.insts[i].hi, t_min, bound[k]):
                     pose = instance_pose(scene, i, pk.time[k])
                     so = to_object(pose, o + d * t_min)
@@ -863,34 +870,36 @@ def make_trace(F: Features) -> SimpleNamespace:
         """``closest_hit`` from the nearest analytic hit on: the mesh instances (bounded by that
         hit), then the hit refined onto its surface. ``kind_analytic`` is KIND_NONE (and
         ``best_analytic`` the ray's t_max) where no analytic shape was hit."""
-        best = best_analytic
-        kind = kind_analytic
-        index = index_analytic
-        face = int(-1)
-        bu = float(0.0)
-        bv = float(0.0)
+        m = MeshHit()
+        m.index = -1
         if wp.static(F.meshes):
             if scene.n_inst > 0:
                 # ties: a mesh must be nearer than an analytic hit by TIE relative to replace it.
                 # Warp's triangle t and an analytic t for the same surface differ by ~9 ulps
                 # either way; without the band a mesh on a plane z-fights in a noisy pattern
-                mesh_t_max = best
-                if kind != KIND_NONE:
-                    mesh_t_max = best * (1.0 - TIE)
+                mesh_t_max = best_analytic
+                if kind_analytic != KIND_NONE:
+                    mesh_t_max = best_analytic * (1.0 - TIE)
                 m = mesh_nearest(scene, o, d, t_min, mesh_t_max, time)
-                if m.index >= 0:
-                    best = m.t
-                    kind = KIND_MESH
-                    index = m.index
-                    face = m.face
-                    bu = m.u
-                    bv = m.v
-        return refine_hit(scene, o, d, time, best, kind, index, face, bu, bv)
+        return nearer_hit(scene, o, d, time, best_analytic, kind_analytic, index_analytic, m)
 
     @wp.func(inline=True)
     def finish_packet_lane(scene: SceneData, o: wp.vec3, d: wp.vec3, time: float, best_analytic: float,
                            kind_analytic: int, index_analytic: int, mp: MeshPacket, k: int) -> Hit:
         """``finish_hit`` for lane k of a camera packet whose mesh hits ``mesh_packet`` found."""
+        m = MeshHit()
+        m.index = mp.inst[k]
+        m.t = mp.t[k]
+        m.face = mp.face[k]
+        m.u = mp.u[k]
+        m.v = mp.v[k]
+        return nearer_hit(scene, o, d, time, best_analytic, kind_analytic, index_analytic, m)
+
+    @wp.func(inline=True)
+    def nearer_hit(scene: SceneData, o: wp.vec3, d: wp.vec3, time: float, best_analytic: float,
+                   kind_analytic: int, index_analytic: int, m: MeshHit) -> Hit:
+        """The mesh hit ``m`` (found below the analytic hit's bound; index -1: none) where there
+        is one, else the analytic hit, refined onto its surface."""
         best = best_analytic
         kind = kind_analytic
         index = index_analytic
@@ -898,13 +907,13 @@ def make_trace(F: Features) -> SimpleNamespace:
         bu = float(0.0)
         bv = float(0.0)
         if wp.static(F.meshes):
-            if mp.inst[k] >= 0:
-                best = mp.t[k]
+            if m.index >= 0:
+                best = m.t
                 kind = KIND_MESH
-                index = mp.inst[k]
-                face = mp.face[k]
-                bu = mp.u[k]
-                bv = mp.v[k]
+                index = m.index
+                face = m.face
+                bu = m.u
+                bv = m.v
         return refine_hit(scene, o, d, time, best, kind, index, face, bu, bv)
 
     @wp.func(inline=True)
