@@ -12,6 +12,8 @@ import pytest
 
 import warprt
 from warprt import accel
+from warprt.records import InstRec
+from warprt.trace import mesh_first_hit
 
 
 def _check_tree(lo, hi):
@@ -194,3 +196,120 @@ def test_the_packet_node_test_lane_by_lane_equals_its_vector_form():
         out[name] = res.numpy()
     np.testing.assert_array_equal(out["vectors"], want)
     np.testing.assert_array_equal(out["lanes"], want)
+
+
+def _bumpy_sphere():
+    """A closed, non-convex mesh (an icosphere with bumps, 1280 faces) in float32: faces see and
+    shadow each other."""
+    import trimesh
+
+    ico = trimesh.creation.icosphere(subdivisions=3)
+    v = np.asarray(ico.vertices, np.float64)
+    lat, lon = np.arcsin(np.clip(v[:, 1], -1, 1)), np.arctan2(v[:, 2], v[:, 0])
+    v = v * (1.0 + 0.15 * np.sin(5 * lon) * np.cos(4 * lat))[:, None]
+    return v.astype(np.float32), np.asarray(ico.faces, np.int32)
+
+
+def _any_hit_f64(tri, o, d, t_max, margin, skip):
+    """Whether a triangle other than the ray's ``skip`` (its starting face, or -1) blocks each
+    segment (o, o + t_max d) in float64 (Möller-Trumbore), and whether the answer is sure: no
+    triangle met within ``margin`` of an edge, of t = 0 or of t_max."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    blocked = np.zeros(len(o), bool)
+    unsure = np.zeros(len(o), bool)
+    for lo in range(0, len(o), 256):
+        oo, dd, tm = o[lo:lo + 256, None], d[lo:lo + 256, None], t_max[lo:lo + 256, None]
+        p = np.cross(dd, e2)
+        det = np.einsum("rtk,tk->rt", p, e1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / det
+            s = oo - tri[:, 0]
+            u = np.einsum("rtk,rtk->rt", s, p) * inv
+            q = np.cross(s, e1)
+            v = np.einsum("rtk,rtk->rt", np.broadcast_to(dd, q.shape), q) * inv
+            t = np.einsum("rtk,tk->rt", q, e2) * inv
+        own = np.arange(len(tri))[None, :] == skip[lo:lo + 256, None]
+        inside = (u >= 0) & (v >= 0) & (u + v <= 1) & (np.abs(det) > 1e-12) & ~own
+        near_edge = (np.minimum(np.minimum(np.abs(u), np.abs(v)), np.abs(1 - u - v)) < margin) | (np.abs(det) <= 1e-12)
+        near_t = (np.abs(t) < margin) | (np.abs(t - tm) < margin)
+        blocked[lo:lo + 256] = (inside & (t > 0) & (t < tm)).any(axis=1)
+        unsure[lo:lo + 256] = ((near_edge | near_t) & (t > -margin) & (t < tm + margin) & ~own).any(axis=1)
+    return blocked, ~unsure
+
+
+def test_mesh_shadow_rays_stop_at_the_first_occluder_with_the_nearest_hit_loops_answer():
+    """``accel.mesh_tree_occluded`` (the CPU's any-hit traversal for shadow rays through opaque
+    meshes) answers every segment as ``trace.mesh_first_hit`` does (the nearest hit in
+    (0, t_max) on a face the ray does not leave), bit for bit, and as a float64 brute force does
+    where that is sure: segments from points exactly on the faces of a bumpy closed mesh (rays
+    leaving a face, rays entering the mesh), the same points moved off by the renderer's spawn
+    offset, segments between random points, and rays aimed at vertices, stopping just before or
+    just past them."""
+    import warp as wp
+
+    v, f = _bumpy_sphere()
+    tri = v[f].astype(np.float64)
+    rng = np.random.default_rng(5)
+    n = 3000
+    face = rng.integers(0, len(f), n)
+    bary = rng.dirichlet([2, 2, 2], n)
+    on = np.einsum("nk,nkj->nj", bary, tri[face]).astype(np.float32)
+    fn = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    d_rand = rng.normal(size=(n, 3))
+    d_rand /= np.linalg.norm(d_rand, axis=1, keepdims=True)
+    d_out = np.where((np.sum(d_rand * fn, 1) > 0)[:, None], d_rand, -d_rand)  # leaving the face's front
+    mag = np.maximum(np.abs(tri[face]).max(axis=1), np.abs(on)) + np.abs(on)
+    off = (np.sum(np.abs(fn) * mag, 1) * 2.0 ** -17)[:, None] * fn
+    pts = rng.uniform(-1.4, 1.4, (2 * n, 3))
+    aim = v[rng.integers(0, len(v), n)].astype(np.float64)
+    o_aim = rng.uniform(-3, 3, (n, 3))
+    d_aim = aim - o_aim
+    dist = np.linalg.norm(d_aim, axis=1)
+    # origins, directions, t_max, and the face the ray starts on where the float64 brute force can
+    # judge it (None: from exactly on a face, whose own plane the ray meets at t ~ 0 on either side
+    # by rounding, or through a vertex, where every ray is on edges: only the nearest-hit loop's
+    # answer is the reference)
+    cases = {
+        "from on the face, leaving it": (on, d_out, rng.uniform(0.01, 3, n), None),
+        "from on the face, entering": (on, -d_out, rng.uniform(0.01, 3, n), None),
+        "spawned off the face": ((on + off).astype(np.float32), d_out, rng.uniform(0.01, 3, n), face),
+        "random segments": (pts[:n], pts[n:] - pts[:n], np.ones(n), np.full(n, -1)),
+        "aimed at vertices": (o_aim, d_aim / dist[:, None], dist * np.where(rng.random(n) < 0.5, 1 - 1e-4, 1 + 1e-4),
+                              None),
+    }
+    mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
+    tree = accel.MeshTree(mesh, len(f))
+    assert tree.usable
+    inst = InstRec()
+    inst.mesh = mesh.id
+    for k, val in tree.record().items():
+        setattr(inst, k, val)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def k(inst: InstRec, o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), t_max: wp.array(dtype=float),
+          out: wp.array(dtype=wp.vec2i)):
+        i = wp.tid()
+        occ = accel.mesh_tree_occluded(inst.tree_nodes, inst.tree_kids, inst.tree_tris, inst.tree_root,
+                                       o[i], d[i], t_max[i])
+        out[i] = wp.vec2i(occ, wp.where(mesh_first_hit(inst, o[i], d[i], t_max[i]).index >= 0, 1, 0))
+
+    blocked_somewhere = 0
+    for name, (o, d, t_max, skip) in cases.items():
+        o, d, t_max = (np.asarray(x, np.float32) for x in (o, d, t_max))
+        res = wp.zeros(len(o), dtype=wp.vec2i, device="cpu")
+        wp.launch(k, dim=len(o), device="cpu", inputs=[
+            inst, wp.array(o, dtype=wp.vec3, device="cpu"), wp.array(d, dtype=wp.vec3, device="cpu"),
+            wp.array(t_max, dtype=float, device="cpu"), res])
+        got, loop = res.numpy().T
+        assert (got >= 0).all(), f"{name}: the traversal gave up on {int((got < 0).sum())} rays"
+        np.testing.assert_array_equal(got, loop, err_msg=name)
+        if skip is not None:
+            want, sure = _any_hit_f64(tri, o.astype(np.float64), d.astype(np.float64), t_max.astype(np.float64),
+                                      1e-5, skip)
+            assert sure.mean() > 0.9, name
+            np.testing.assert_array_equal(got[sure], want[sure], err_msg=name)
+        blocked_somewhere += int(got.sum())
+        assert 0 < got.mean() < 1, f"{name}: every answer the same ({got.mean():.2f})"
+    assert blocked_somewhere > 1000

@@ -21,8 +21,8 @@ from types import SimpleNamespace
 import warp as wp
 
 from .accel import (
-    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, mesh_tree_packet, mesh_tree_ray, packet_node,
-    safe_inverse, slab,
+    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, mesh_tree_occluded, mesh_tree_packet, mesh_tree_ray,
+    packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
@@ -977,9 +977,15 @@ def make_trace(F: Features) -> SimpleNamespace:
             d_obj = dir_to_object(pose, d)
             kt = crossing(scene, scene.insts[i].mat)
             if wp.max(kt) <= 0.0:
-                # the nearest hit, so that the surface the ray leaves can be told apart (an any-hit
-                # query can stop on it, and confirming a hit took a second traversal)
-                if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
+                # opaque: any triangle the ray meets and does not leave blocks it (the CPU's tree
+                # copy stops at the first); else the nearest-hit loop, which steps over the face
+                # the ray leaves
+                occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids,
+                                         scene.insts[i].tree_tris, scene.insts[i].tree_root, o_obj, d_obj, t_max)
+                if occ < 0:
+                    if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
+                        occ = 1
+                if occ > 0:
                     return wp.vec3(0.0, 0.0, 0.0)
             else:
                 # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
