@@ -77,7 +77,6 @@ def kernels_for(F: Features) -> SimpleNamespace:
     mesh_packet = trace.mesh_packet
     finish_packet_lane = trace.finish_packet_lane
     packets = F.camera_packets
-    stack_size = STACK_SIZE if F.secondary else 1  # only the camera ray without secondary rays
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
 
@@ -120,7 +119,8 @@ def kernels_for(F: Features) -> SimpleNamespace:
             acc_sq = film.accum_sq[pixel]
             rays = film.rays[pixel]
             dropped = film.overflow[pixel]
-        stack = wp.zeros(shape=wp.static(stack_size), dtype=RayEntry)
+        if wp.static(F.secondary):
+            stack = wp.zeros(shape=STACK_SIZE, dtype=RayEntry)
         pkey = pixel_key(params.seed, pixel)
         # with a BVH over the analytic shapes or with meshes, the camera rays of PACKET_MIN to
         # PACKET samples go through them together (trace_packet, mesh_packet: the same hits as
@@ -178,11 +178,16 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 first.w = wp.vec3(1.0, 1.0, 1.0)
                 first.depth = 0
                 first.key = wp.uint32(ROOT_KEY)
-                stack[0] = first
+                # without secondary rays the loop below runs once, on the camera ray itself: no
+                # ray stack (its store and load cost 3-5% of a sample, levers table)
+                e = first
+                if wp.static(F.secondary):
+                    stack[0] = first
                 sp = int(1)
                 while sp > 0:
                     sp -= 1
-                    e = stack[sp]
+                    if wp.static(F.secondary):
+                        e = stack[sp]
                     rays += 1
                     t_lo = float(0.0)
                     t_hi = float(3.0e38)
