@@ -3,6 +3,7 @@ image as the all-features kernel, shared mesh assets, and the sphere BVH."""
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import numpy as np
@@ -11,6 +12,8 @@ import pytest
 import warprt
 from warprt import Features
 from warprt import build as build_module
+
+render_module = importlib.import_module("warprt.render")  # (``warprt.render`` is also the function)
 
 
 def _scene(**kw) -> warprt.Scene:
@@ -150,12 +153,15 @@ def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, 
         assert a.tobytes() == b.tobytes(), (spp, adaptive)
 
 
-def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by_one(device):
-    """With meshes, up to ``trace.PACKET`` camera rays of a pixel also go through each mesh's
-    tree together (``trace.mesh_packet``; on the CPU ``accel.mesh_tree_packet``), each bounded by
-    its own analytic hit. A render whose passes are one sample each traces every camera ray
-    alone; the packets' image equals it bit for bit: two meshes (one posed and moving), a
-    sphere in front of one, a plane, rays with their own lens origins and times."""
+def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by_one(device, monkeypatch):
+    """With meshes, up to ``trace.PACKET`` camera rays also go through each mesh's tree together
+    (``trace.mesh_packet``; on the CPU ``accel.mesh_tree_packet``), each bounded by its own
+    analytic hit; a packet takes the next pixels' samples too where a pixel has fewer left. A
+    render whose passes are one sample each and whose threads take one pixel each traces every
+    camera ray alone; the packets' images equal it bit for bit, with a full and a part packet
+    per pixel, with adaptive sampling's per-pixel counts (packets over several pixels), and with
+    one-sample passes over whole rows (packets of 8 pixels): two meshes (one posed and moving),
+    a sphere in front of one, a plane, rays with their own lens origins and times."""
     from warprt.trace import PACKET
 
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24, endpoint=False), np.linspace(0, 2 * np.pi, 12, endpoint=False),
@@ -180,8 +186,15 @@ def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by
     assert ren.features.meshes and ren.built.analytic_bvh is None
     spp = PACKET + 3  # one full packet and a part one too small for a packet, after the first pass
     a = ren.render(spp=spp, seed=4, progress=False).image
-    b = ren.render(spp=spp, seed=4, progress=False, pass_spp=1).image
+    a_rows = ren.render(spp=spp, seed=4, progress=False, pass_spp=1).image
+    a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
+    monkeypatch.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
+    alone = warprt.Renderer(scene, device=device)  # (its recorded launches made with one pixel a thread)
+    b = alone.render(spp=spp, seed=4, progress=False, pass_spp=1).image
+    b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
     assert a.tobytes() == b.tobytes()
+    assert a_rows.tobytes() == b.tobytes()
+    assert a_adaptive.tobytes() == b_adaptive.tobytes()
 
 
 def test_long_rectangles_boxed_in_pieces_find_the_same_hits_and_shadows(device, monkeypatch):

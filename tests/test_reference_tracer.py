@@ -20,6 +20,7 @@ image must match to float32 accuracy.
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import numpy as np
@@ -211,9 +212,14 @@ def reference(sc):
     return rgb.reshape(H, W, 3), decidable.reshape(H, W), keys
 
 
+@pytest.mark.parametrize("alone", [False, True], ids=["packets", "one by one"])
 @pytest.mark.parametrize("t_min, t_max", [(0.0, math.inf), (3.3, math.inf), (0.0, 3.6), (3.3, 4.4)],
                          ids=["full range", "t_min inside the objects", "t_max", "both"])
-def test_image_matches_the_float64_tracer(t_min, t_max):
+def test_image_matches_the_float64_tracer(t_min, t_max, alone, monkeypatch):
+    """Camera rays in packets (a row's pixels, 8 at a time) and, with one pixel a thread at 1
+    spp, each ray alone."""
+    if alone:
+        monkeypatch.setattr(importlib.import_module("warprt.render"), "pixels_per_thread", lambda dev, width: 1)
     sc = scene(t_min, t_max)
     img = warprt.Renderer(sc, device="cpu").render(progress=False).image.astype(np.float64)
     ref, ok, keys = reference(sc)

@@ -1,6 +1,8 @@
 """The render megakernel, specialised per :class:`Features` value.
 
-Per pixel sample (one thread owns one pixel and loops over its samples):
+Per pixel sample (one thread takes a row of pixels on the CPU, one pixel on CUDA, and their
+samples pixel by pixel; with trees, camera rays go 8 at a time as a packet, from the next pixels
+too where a pixel has fewer samples left):
 
 1. camera sample: film position, lens position and time from the sampler (dimensions
    ``DIM_FILM``, ``DIM_LENS``, ``DIM_TIME``);
@@ -35,9 +37,10 @@ from .lights import make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
-from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, make_trace
+from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketI, make_trace
 
 STACK_SIZE = 16
+PacketU = wp.types.vector(length=PACKET, dtype=wp.uint32)  # a packet's lanes' pixel keys
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2  # dimension keys of the camera sample
 ROOT_KEY = 0x51ED270B  # dimension key of the camera ray's path vertex
 KEY_GLOSSY_REFLECT, KEY_FROSTED_REFRACT = 1, 2  # lobe samples at a vertex: hash2(vertex key, ...)
@@ -58,6 +61,15 @@ class RayEntry:
     w: wp.vec3  # throughput
     depth: int
     key: wp.uint32  # dimension key of the path vertex this ray will find
+
+
+@wp.func
+def start_empty(film: FilmData, pixel: int):
+    """The sums of a pixel without samples in the first pass (an adaptive count of 0)."""
+    film.accum[pixel] = wp.vec3(0.0, 0.0, 0.0)
+    film.accum_sq[pixel] = 0.0
+    film.rays[pixel] = 0
+    film.overflow[pixel] = 0
 
 
 @wp.func(inline=True)
@@ -102,26 +114,26 @@ def kernels_for(F: Features) -> SimpleNamespace:
         return cs
 
     @wp.func(inline=True)
-    def render_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
-                     s0: int, s1: int, film: FilmData):
-        """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``
-        (also the pixel's noise key: unique over everything one film holds)."""
-        s_end = wp.min(s1, film.limit[pixel])  # the limit: adaptive sampling's count for this pixel
-        if s_end <= s0 and s0 > 0:
-            return
-        # the first pass starts the sums (the film needs no zeroing); later passes add to them
+    def render_pixels(scene: SceneData, cam: CameraData, params: RenderParams, px0: int, py: int, pixel0: int,
+                      n_pix: int, s0: int, s1: int, film: FilmData):
+        """Samples [s0, s1) of the ``n_pix`` raster pixels (px0 + j, py) of ``cam``, added to film
+        entries pixel0 + j (each also the pixel's noise key: unique over everything one film
+        holds). The samples are taken pixel by pixel, each pixel's in order, so its sums are the
+        same whatever the grouping; with camera packets a packet takes PACKET samples in that
+        order, from the next pixels too when a pixel has fewer left (an adaptive render's pilot
+        and later passes, low spp), so that packets stay full."""
+        # the pixel whose sums are held (-1: none yet); the first pass starts the sums (the film
+        # needs no zeroing), later passes add to them; a pixel without samples in a later pass
+        # (adaptive sampling's count reached) is not touched
+        cur = int(-1)
+        pixel = int(0)
+        pkey = wp.uint32(0)
         acc = wp.vec3(0.0, 0.0, 0.0)
         acc_sq = float(0.0)
         rays = int(0)
         dropped = int(0)
-        if s0 > 0:
-            acc = film.accum[pixel]
-            acc_sq = film.accum_sq[pixel]
-            rays = film.rays[pixel]
-            dropped = film.overflow[pixel]
         if wp.static(F.secondary):
             stack = wp.zeros(shape=STACK_SIZE, dtype=RayEntry)
-        pkey = pixel_key(params.seed, pixel)
         # with a BVH over the analytic shapes or with meshes, the camera rays of PACKET_MIN to
         # PACKET samples go through them together (trace_packet, mesh_packet: the same hits as
         # one by one, fewer node visits per ray)
@@ -129,21 +141,82 @@ def kernels_for(F: Features) -> SimpleNamespace:
         meshes = False
         if wp.static(F.meshes):
             meshes = scene.n_inst > 0
-        base = s0
-        while base < s_end:
-            lanes = int(1)  # without trees: one sample at a time, as ever
+        # the gathering cursor: sample g_s of pixel g_j, whose samples end at g_end (the limit:
+        # adaptive sampling's count for the pixel)
+        g_j = int(0)
+        g_s = s0
+        g_end = wp.min(s1, film.limit[pixel0])
+        g_key = pixel_key(params.seed, pixel0)
+        lane_j = PacketI()
+        lane_s = PacketI()
+        lane_key = PacketU()
+        # the lanes' pixel, first sample and key: p_j, one_s + k and p_key, or with ``mixed`` (a
+        # packet over several pixels) lane_j, lane_s and lane_key
+        p_j = int(0)
+        p_key = wp.uint32(0)
+        one_s = int(0)
+        mixed = bool(False)
+        while g_j < n_pix:
+            if g_s >= g_end:
+                # the pixel's samples are all taken: on to the next
+                if g_end <= s0 and s0 == 0:
+                    start_empty(film, pixel0 + g_j)
+                g_j += 1
+                g_s = s0
+                if g_j < n_pix:
+                    g_end = wp.min(s1, film.limit[pixel0 + g_j])
+                    g_key = pixel_key(params.seed, pixel0 + g_j)
+                continue
+            lanes = int(0)
+            p_j = g_j
+            p_key = g_key
+            one_s = g_s
+            mixed = False
+            if wp.static(packets):
+                if g_end - g_s >= PACKET:
+                    # a whole packet from this pixel
+                    lanes = PACKET
+                    g_s += PACKET
+                else:
+                    mixed = True  # up to PACKET samples, from the next pixels too
+                while lanes < PACKET and g_j < n_pix:
+                    if g_s < g_end:
+                        lane_j[lanes] = g_j
+                        lane_s[lanes] = g_s
+                        lane_key[lanes] = g_key
+                        lanes += 1
+                        g_s += 1
+                    else:
+                        if g_end <= s0 and s0 == 0:
+                            start_empty(film, pixel0 + g_j)
+                        g_j += 1
+                        g_s = s0
+                        if g_j < n_pix:
+                            g_end = wp.min(s1, film.limit[pixel0 + g_j])
+                            g_key = pixel_key(params.seed, pixel0 + g_j)
+            else:
+                lanes = g_end - g_s  # without trees: the pixel's samples one at a time
+                g_s = g_end
+            if lanes == 0:
+                break
             packed = False
             pk = CameraPacket()
             mp = MeshPacket()
             mesh_packed = False
             if wp.static(packets):
-                lanes = wp.min(PACKET, s_end - base)
                 packed = bvh and lanes >= PACKET_MIN
                 if wp.static(F.meshes):
                     mesh_packed = meshes and lanes >= MESH_PACKET_MIN
                     packed = packed or mesh_packed
                 for k in range(lanes):
-                    cs = camera_sample(cam, params, pkey, base + k, px, py)
+                    jk = p_j
+                    sk = one_s + k
+                    kk = p_key
+                    if mixed:
+                        jk = lane_j[k]
+                        sk = lane_s[k]
+                        kk = lane_key[k]
+                    cs = camera_sample(cam, params, kk, sk, px0 + jk, py)
                     pk.ox[k] = cs.o[0]
                     pk.oy[k] = cs.o[1]
                     pk.oz[k] = cs.o[2]
@@ -161,156 +234,200 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     if wp.static(F.meshes):
                         if mesh_packed:
                             mp = mesh_packet(scene, pk, params.t_min, lanes)
-            for k in range(lanes):
-                s = base + k
-                first = RayEntry()
-                time = float(0.0)
+            # the packet's lanes pixel by pixel: a pixel's sums are fetched before its lanes and
+            # stored after them, never inside the loop over its samples (stores there kept the
+            # compiler from hoisting the scene's loads out of it: 4-10% of a sample)
+            k_lo = int(0)
+            while k_lo < lanes:
+                jk = p_j
+                key = p_key
+                k_hi = lanes
                 if wp.static(packets):
-                    time = pk.time[k]
-                    first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                    first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
-                else:
-                    cs = camera_sample(cam, params, pkey, s, px, py)
-                    time = cs.time
-                    first.o = cs.o
-                    first.d = cs.d
-                L = wp.vec3(0.0, 0.0, 0.0)
-                first.w = wp.vec3(1.0, 1.0, 1.0)
-                first.depth = 0
-                first.key = wp.uint32(ROOT_KEY)
-                # without secondary rays the loop below runs once, on the camera ray itself: no
-                # ray stack (its store and load cost 3-5% of a sample, levers table)
-                e = first
-                if wp.static(F.secondary):
-                    stack[0] = first
-                sp = int(1)
-                while sp > 0:
-                    sp -= 1
-                    if wp.static(F.secondary):
-                        e = stack[sp]
-                    rays += 1
-                    t_lo = float(0.0)
-                    t_hi = float(3.0e38)
-                    if e.depth == 0:
-                        t_lo = params.t_min
-                        t_hi = params.t_max
-                    h = Hit()
+                    if mixed:
+                        jk = lane_j[k_lo]
+                        key = lane_key[k_lo]
+                        if lane_j[lanes - 1] != jk:
+                            k_hi = k_lo + 1
+                            while lane_j[k_hi] == jk:
+                                k_hi += 1
+                if jk != cur:
+                    if cur >= 0:
+                        film.accum[pixel] = acc
+                        film.accum_sq[pixel] = acc_sq
+                        film.rays[pixel] = rays
+                        film.overflow[pixel] = dropped
+                    cur = jk
+                    pixel = pixel0 + cur
+                    pkey = key
+                    acc = wp.vec3(0.0, 0.0, 0.0)
+                    acc_sq = float(0.0)
+                    rays = int(0)
+                    dropped = int(0)
+                    if s0 > 0:
+                        acc = film.accum[pixel]
+                        acc_sq = film.accum_sq[pixel]
+                        rays = film.rays[pixel]
+                        dropped = film.overflow[pixel]
+                for k in range(k_lo, k_hi):
+                    s = one_s + k
                     if wp.static(packets):
-                        if e.depth == 0 and packed:
-                            # the packet found this camera ray's nearest analytic hit (and mesh hit)
-                            if mesh_packed:
-                                h = finish_packet_lane(scene, e.o, e.d, time, pk.best[k], pk.kind[k], pk.index[k],
-                                                       mp, k)
+                        if mixed:
+                            s = lane_s[k]
+                    first = RayEntry()
+                    time = float(0.0)
+                    if wp.static(packets):
+                        time = pk.time[k]
+                        first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                        first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                    else:
+                        cs = camera_sample(cam, params, pkey, s, px0 + cur, py)
+                        time = cs.time
+                        first.o = cs.o
+                        first.d = cs.d
+                    L = wp.vec3(0.0, 0.0, 0.0)
+                    first.w = wp.vec3(1.0, 1.0, 1.0)
+                    first.depth = 0
+                    first.key = wp.uint32(ROOT_KEY)
+                    # without secondary rays the loop below runs once, on the camera ray itself: no
+                    # ray stack (its store and load cost 3-5% of a sample, levers table)
+                    e = first
+                    if wp.static(F.secondary):
+                        stack[0] = first
+                    sp = int(1)
+                    while sp > 0:
+                        sp -= 1
+                        if wp.static(F.secondary):
+                            e = stack[sp]
+                        rays += 1
+                        t_lo = float(0.0)
+                        t_hi = float(3.0e38)
+                        if e.depth == 0:
+                            t_lo = params.t_min
+                            t_hi = params.t_max
+                        h = Hit()
+                        if wp.static(packets):
+                            if e.depth == 0 and packed:
+                                # the packet found this camera ray's nearest analytic hit (and mesh hit)
+                                if mesh_packed:
+                                    h = finish_packet_lane(scene, e.o, e.d, time, pk.best[k], pk.kind[k], pk.index[k],
+                                                           mp, k)
+                                else:
+                                    h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
                             else:
-                                h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
+                                h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                         else:
                             h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
-                    else:
-                        h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
-                    if h.kind == KIND_NONE:
-                        L += mul_sat(e.w, scene.background)
-                        continue
-                    front = wp.dot(e.d, h.ng) < 0.0
-                    ng = h.ng
-                    n = h.ns
-                    if not front:
-                        ng = -ng
-                        n = -n
-                    if wp.dot(n, e.d) > 0.0:
-                        n = ng  # a shading normal facing away from the viewer: fall back
-                    le = scene.mats[h.mat].emit
-                    if wp.max(le) > 0.0:
-                        if front:
-                            L += mul_sat(e.w, le)
-                        continue
-                    v = -e.d
-                    local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
-                    origin = spawn_origin(h.p, ng, h.mag, 1.0)  # shadow rays leave from here
-                    dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, time)
-                    rays += int(dl[3])
-                    local += wp.vec3(dl[0], dl[1], dl[2])
-                    if wp.static(F.area_lights):
-                        # a separate call: a scene without area lights keeps the point-light code
-                        # small enough for the C++ compiler to inline (docs/architecture.md,
-                        # "Features and compile cost")
-                        if scene.n_alights > 0:
-                            al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
-                                                    scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
-                            rays += int(al[3])
-                            local += wp.vec3(al[0], al[1], al[2])
-                    L += mul_sat(e.w, local)
+                        if h.kind == KIND_NONE:
+                            L += mul_sat(e.w, scene.background)
+                            continue
+                        front = wp.dot(e.d, h.ng) < 0.0
+                        ng = h.ng
+                        n = h.ns
+                        if not front:
+                            ng = -ng
+                            n = -n
+                        if wp.dot(n, e.d) > 0.0:
+                            n = ng  # a shading normal facing away from the viewer: fall back
+                        le = scene.mats[h.mat].emit
+                        if wp.max(le) > 0.0:
+                            if front:
+                                L += mul_sat(e.w, le)
+                            continue
+                        v = -e.d
+                        local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
+                        origin = spawn_origin(h.p, ng, h.mag, 1.0)  # shadow rays leave from here
+                        dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, time)
+                        rays += int(dl[3])
+                        local += wp.vec3(dl[0], dl[1], dl[2])
+                        if wp.static(F.area_lights):
+                            # a separate call: a scene without area lights keeps the point-light code
+                            # small enough for the C++ compiler to inline (docs/architecture.md,
+                            # "Features and compile cost")
+                            if scene.n_alights > 0:
+                                al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
+                                                        scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
+                                rays += int(al[3])
+                                local += wp.vec3(al[0], al[1], al[2])
+                        L += mul_sat(e.w, local)
 
-                    if wp.static(F.secondary):
-                        if e.depth < params.max_depth:
-                            w_refl = scene.mats[h.mat].km
-                            if wp.static(F.refraction):
-                                kt = scene.mats[h.mat].kt
-                                if wp.max(kt) > 0.0:
-                                    ior = scene.mats[h.mat].ior
-                                    eta_i = float(1.0)
-                                    eta_t = float(ior)
-                                    if not front:
-                                        eta_i = ior
-                                        eta_t = 1.0
-                                    tdir = refract(e.d, n, eta_i / eta_t)
-                                    if wp.length(tdir) == 0.0:
-                                        w_refl = w_refl + kt  # total internal reflection
-                                    else:
-                                        w_refr = kt
-                                        mode = scene.mats[h.mat].fresnel
-                                        if mode > 0:
-                                            fr = fresnel(mode, -wp.dot(e.d, n), eta_i, eta_t)
-                                            w_refl = w_refl + kt * fr
-                                            w_refr = kt * (1.0 - fr)
-                                        if wp.static(F.glossy):
-                                            frost = scene.mats[h.mat].frost
-                                            if frost > 0.0:
-                                                ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
-                                                               hash2(e.key, wp.uint32(KEY_FROSTED_REFRACT)))
-                                                tdir = lobe(ug, tdir, frost)
-                                        tw = mul_sat(e.w, w_refr)
-                                        if wp.dot(tdir, ng) < 0.0 and wp.max(tw) > params.min_weight:
-                                            if sp < STACK_SIZE:
-                                                child = RayEntry()
-                                                child.o = spawn_origin(h.p, ng, h.mag, -1.0)
-                                                child.d = tdir
-                                                child.w = tw
-                                                child.depth = e.depth + 1
-                                                child.key = hash2(e.key, wp.uint32(KEY_REFRACTED))
-                                                stack[sp] = child
-                                                sp += 1
-                                            else:
-                                                dropped += 1
-                            rw = mul_sat(e.w, w_refl)
-                            if wp.max(rw) > params.min_weight:
-                                r = reflect(e.d, n)
-                                if wp.static(F.glossy):
-                                    gloss = scene.mats[h.mat].gloss
-                                    if gloss > 0.0:
-                                        ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
-                                                       hash2(e.key, wp.uint32(KEY_GLOSSY_REFLECT)))
-                                        r = lobe(ug, r, gloss)
-                                if wp.dot(r, ng) > 0.0:
-                                    if sp < STACK_SIZE:
-                                        child = RayEntry()
-                                        child.o = spawn_origin(h.p, ng, h.mag, 1.0)
-                                        child.d = r
-                                        child.w = rw
-                                        child.depth = e.depth + 1
-                                        child.key = hash2(e.key, wp.uint32(KEY_REFLECTED))
-                                        stack[sp] = child
-                                        sp += 1
-                                    else:
-                                        dropped += 1
-                L = sanitize(L, params.clamp)
-                acc = acc + L
-                y = luminance(L)
-                acc_sq = acc_sq + y * y
-            base += lanes
-        film.accum[pixel] = acc
-        film.accum_sq[pixel] = acc_sq
-        film.rays[pixel] = rays
-        film.overflow[pixel] = dropped
+                        if wp.static(F.secondary):
+                            if e.depth < params.max_depth:
+                                w_refl = scene.mats[h.mat].km
+                                if wp.static(F.refraction):
+                                    kt = scene.mats[h.mat].kt
+                                    if wp.max(kt) > 0.0:
+                                        ior = scene.mats[h.mat].ior
+                                        eta_i = float(1.0)
+                                        eta_t = float(ior)
+                                        if not front:
+                                            eta_i = ior
+                                            eta_t = 1.0
+                                        tdir = refract(e.d, n, eta_i / eta_t)
+                                        if wp.length(tdir) == 0.0:
+                                            w_refl = w_refl + kt  # total internal reflection
+                                        else:
+                                            w_refr = kt
+                                            mode = scene.mats[h.mat].fresnel
+                                            if mode > 0:
+                                                fr = fresnel(mode, -wp.dot(e.d, n), eta_i, eta_t)
+                                                w_refl = w_refl + kt * fr
+                                                w_refr = kt * (1.0 - fr)
+                                            if wp.static(F.glossy):
+                                                frost = scene.mats[h.mat].frost
+                                                if frost > 0.0:
+                                                    ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
+                                                                   hash2(e.key, wp.uint32(KEY_FROSTED_REFRACT)))
+                                                    tdir = lobe(ug, tdir, frost)
+                                            tw = mul_sat(e.w, w_refr)
+                                            if wp.dot(tdir, ng) < 0.0 and wp.max(tw) > params.min_weight:
+                                                if sp < STACK_SIZE:
+                                                    child = RayEntry()
+                                                    child.o = spawn_origin(h.p, ng, h.mag, -1.0)
+                                                    child.d = tdir
+                                                    child.w = tw
+                                                    child.depth = e.depth + 1
+                                                    child.key = hash2(e.key, wp.uint32(KEY_REFRACTED))
+                                                    stack[sp] = child
+                                                    sp += 1
+                                                else:
+                                                    dropped += 1
+                                rw = mul_sat(e.w, w_refl)
+                                if wp.max(rw) > params.min_weight:
+                                    r = reflect(e.d, n)
+                                    if wp.static(F.glossy):
+                                        gloss = scene.mats[h.mat].gloss
+                                        if gloss > 0.0:
+                                            ug = sample_2d_keyed(params.sampler, pkey, s, params.spp,
+                                                           hash2(e.key, wp.uint32(KEY_GLOSSY_REFLECT)))
+                                            r = lobe(ug, r, gloss)
+                                    if wp.dot(r, ng) > 0.0:
+                                        if sp < STACK_SIZE:
+                                            child = RayEntry()
+                                            child.o = spawn_origin(h.p, ng, h.mag, 1.0)
+                                            child.d = r
+                                            child.w = rw
+                                            child.depth = e.depth + 1
+                                            child.key = hash2(e.key, wp.uint32(KEY_REFLECTED))
+                                            stack[sp] = child
+                                            sp += 1
+                                        else:
+                                            dropped += 1
+                    L = sanitize(L, params.clamp)
+                    acc = acc + L
+                    y = luminance(L)
+                    acc_sq = acc_sq + y * y
+                k_lo = k_hi
+        if cur >= 0:
+            film.accum[pixel] = acc
+            film.accum_sq[pixel] = acc_sq
+            film.rays[pixel] = rays
+            film.overflow[pixel] = dropped
+
+    @wp.func(inline=True)
+    def render_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
+                     s0: int, s1: int, film: FilmData):
+        """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``."""
+        render_pixels(scene, cam, params, px, py, pixel, 1, s0, s1, film)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
@@ -323,8 +440,6 @@ def kernels_for(F: Features) -> SimpleNamespace:
         if py >= cam.height:
             return
         px0 = k0 % cam.width
-        for j in range(run):
-            px = px0 + j
-            render_pixel(scene, cam, params, px, py, py * cam.width + px, s0, s1, film)
+        render_pixels(scene, cam, params, px0, py, py * cam.width + px0, run, s0, s1, film)
 
     return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)
