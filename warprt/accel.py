@@ -452,7 +452,43 @@ _WOOP = r"""
         const float tt = T * rcp;
 """
 
-_TREE_RAY = r"""
+# the ray's shear (kx, ky, kz, Sx, Sy, Sz and the origin's sheared coordinates okx, oky, okz) for
+# ``_WOOP``, from the ray (ox, oy, oz, dx, dy, dz); and the slab tests of both children of the
+# tree copy's ``node`` (entry n0 / n1, exit f0 / f1, children k0 / k1) from its 1/d (ix, iy, iz):
+# the scalar traversals' shared pieces, spliced into each as text
+_SHEAR = r"""
+    int kz = fabsf(dx) > fabsf(dy) ? (fabsf(dx) > fabsf(dz) ? 0 : 2) : (fabsf(dy) > fabsf(dz) ? 1 : 2);
+    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+    const float dk[3] = {dx, dy, dz};
+    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+    const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
+    const float ok[3] = {ox, oy, oz};
+    const float okx = ok[kx], oky = ok[ky], okz = ok[kz];
+"""
+_NODE_BOXES = r"""
+        const float* nd = N + 12 * node;
+        float a0 = (nd[0] - ox) * ix, b0 = (nd[3] - ox) * ix;
+        float a1 = (nd[1] - oy) * iy, b1 = (nd[4] - oy) * iy;
+        float a2 = (nd[2] - oz) * iz, b2 = (nd[5] - oz) * iz;
+        float n0 = fmaxf(fmaxf(fminf(a0, b0), fminf(a1, b1)), fmaxf(fminf(a2, b2), 0.0f));
+        float f0 = fminf(fminf(fmaxf(a0, b0), fmaxf(a1, b1)), fmaxf(a2, b2));
+        float c0x = (nd[6] - ox) * ix, d0x = (nd[9] - ox) * ix;
+        float c1y = (nd[7] - oy) * iy, d1y = (nd[10] - oy) * iy;
+        float c2z = (nd[8] - oz) * iz, d2z = (nd[11] - oz) * iz;
+        float n1 = fmaxf(fmaxf(fminf(c0x, d0x), fminf(c1y, d1y)), fmaxf(fminf(c2z, d2z), 0.0f));
+        float f1 = fminf(fminf(fmaxf(c0x, d0x), fmaxf(c1y, d1y)), fmaxf(c2z, d2z));
+        int k0 = C[2 * node], k1 = C[2 * node + 1];
+"""
+
+
+def _splice(snippet: str) -> str:
+    """A traversal snippet with its shared pieces (``_WOOP``, ``_SHEAR``, ``_NODE_BOXES``) in place."""
+    for name, text in (("WOOP", _WOOP), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES)):
+        snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
+    return snippet
+
+
+_TREE_RAY = _splice(r"""
 wp::vec_t<5, wp::float32> out;
 out[0] = -1.0f;
 #if !defined(__CUDA_ARCH__)
@@ -472,13 +508,7 @@ if (nodes != 0) {
     int sp = 0;
     int node = root;
     // the ray's shear (Woop, Benthin and Wald), set up once per ray
-    int kz = fabsf(dx) > fabsf(dy) ? (fabsf(dx) > fabsf(dz) ? 0 : 2) : (fabsf(dy) > fabsf(dz) ? 1 : 2);
-    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-    const float dk[3] = {dx, dy, dz};
-    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
-    const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
-    const float ok[3] = {ox, oy, oz};
-    const float okx = ok[kx], oky = ok[ky], okz = ok[kz];
+@SHEAR@
     // the watertight test, as wp::intersect_ray_tri_woop computes it once the shear is set
     auto tri_test = [&](int k) {
 @WOOP@
@@ -486,18 +516,7 @@ if (nodes != 0) {
         if (tt >= 0.0f && (tt < best || (tt == best && k < hitp))) { best = tt; bu = U * rcp; bv = V * rcp; hitp = k; }
     };
     while (true) {
-        const float* nd = N + 12 * node;
-        float a0 = (nd[0] - ox) * ix, b0 = (nd[3] - ox) * ix;
-        float a1 = (nd[1] - oy) * iy, b1 = (nd[4] - oy) * iy;
-        float a2 = (nd[2] - oz) * iz, b2 = (nd[5] - oz) * iz;
-        float n0 = fmaxf(fmaxf(fminf(a0, b0), fminf(a1, b1)), fmaxf(fminf(a2, b2), 0.0f));
-        float f0 = fminf(fminf(fmaxf(a0, b0), fmaxf(a1, b1)), fmaxf(a2, b2));
-        float c0x = (nd[6] - ox) * ix, d0x = (nd[9] - ox) * ix;
-        float c1y = (nd[7] - oy) * iy, d1y = (nd[10] - oy) * iy;
-        float c2z = (nd[8] - oz) * iz, d2z = (nd[11] - oz) * iz;
-        float n1 = fmaxf(fmaxf(fminf(c0x, d0x), fminf(c1y, d1y)), fmaxf(fminf(c2z, d2z), 0.0f));
-        float f1 = fminf(fminf(fmaxf(c0x, d0x), fmaxf(c1y, d1y)), fmaxf(c2z, d2z));
-        int k0 = C[2 * node], k1 = C[2 * node + 1];
+@NODE_BOXES@
         bool h0 = n0 <= f0 * 1.0000004f && n0 <= best;
         bool h1 = n1 <= f1 * 1.0000004f && n1 <= best;
         if (h0 && k0 < 0) { tri_test(-k0 - 1); h0 = false; }
@@ -538,7 +557,7 @@ if (wp::mesh_query_ray(mid, o, d, t_max, t, u, v, sign, n, face)) {
     out[0] = t; out[1] = u; out[2] = v; out[3] = (float)(face >> 12); out[4] = (float)(face & 4095);
 }
 return out;
-""".replace("@WOOP@\n", _WOOP.lstrip("\n"))
+""")
 
 
 @wp.func_native(_TREE_RAY)
@@ -558,7 +577,7 @@ def mesh_tree_ray(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.ui
 # loop gives (an occluder exists or not), without ordering the hits or stepping over the face the
 # ray leaves: 0.89x the time of ``mesh_tree_ray`` with that check on scene (d)'s shadow rays, a
 # third of which are blocked (docs/benchmarks.md, levers).
-_TREE_OCCLUDED = r"""
+_TREE_OCCLUDED = _splice(r"""
 #if !defined(__CUDA_ARCH__)
 if (nodes != 0) {
     const float* N = (const float*)nodes;
@@ -573,13 +592,7 @@ if (nodes != 0) {
     int sp = 0;
     int node = root;
     bool blocked = false;
-    int kz = fabsf(dx) > fabsf(dy) ? (fabsf(dx) > fabsf(dz) ? 0 : 2) : (fabsf(dy) > fabsf(dz) ? 1 : 2);
-    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-    const float dk[3] = {dx, dy, dz};
-    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
-    const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
-    const float ok[3] = {ox, oy, oz};
-    const float okx = ok[kx], oky = ok[ky], okz = ok[kz];
+@SHEAR@
     auto tri_test = [&](int k) {
 @WOOP@
         if (tt > 0.0f && tt < t_max) {
@@ -589,18 +602,7 @@ if (nodes != 0) {
         }
     };
     while (true) {
-        const float* nd = N + 12 * node;
-        float a0 = (nd[0] - ox) * ix, b0 = (nd[3] - ox) * ix;
-        float a1 = (nd[1] - oy) * iy, b1 = (nd[4] - oy) * iy;
-        float a2 = (nd[2] - oz) * iz, b2 = (nd[5] - oz) * iz;
-        float n0 = fmaxf(fmaxf(fminf(a0, b0), fminf(a1, b1)), fmaxf(fminf(a2, b2), 0.0f));
-        float f0 = fminf(fminf(fmaxf(a0, b0), fmaxf(a1, b1)), fmaxf(a2, b2));
-        float c0x = (nd[6] - ox) * ix, d0x = (nd[9] - ox) * ix;
-        float c1y = (nd[7] - oy) * iy, d1y = (nd[10] - oy) * iy;
-        float c2z = (nd[8] - oz) * iz, d2z = (nd[11] - oz) * iz;
-        float n1 = fmaxf(fmaxf(fminf(c0x, d0x), fminf(c1y, d1y)), fmaxf(fminf(c2z, d2z), 0.0f));
-        float f1 = fminf(fminf(fmaxf(c0x, d0x), fmaxf(c1y, d1y)), fmaxf(c2z, d2z));
-        int k0 = C[2 * node], k1 = C[2 * node + 1];
+@NODE_BOXES@
         bool h0 = n0 <= f0 * 1.0000004f && n0 <= t_max;
         bool h1 = n1 <= f1 * 1.0000004f && n1 <= t_max;
         if (h0 && k0 < 0) { tri_test(-k0 - 1); h0 = false; }
@@ -621,7 +623,7 @@ if (nodes != 0) {
 }
 #endif
 return -1;
-""".replace("@WOOP@\n", _WOOP.lstrip("\n"))
+""")
 
 
 @wp.func_native(_TREE_OCCLUDED)
@@ -640,7 +642,7 @@ def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root:
 # meets the leaves in changes nothing. Lanes with t_max < 0 take no part. Without the copy (CUDA,
 # or a tree it cannot take) or past 80 stacked nodes it returns 0 and the caller sends each lane
 # through ``mesh_tree_ray`` alone.
-_TREE_PACKET = r"""
+_TREE_PACKET = _splice(r"""
 bool alone = true;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
 if (nodes != 0) {
@@ -752,7 +754,7 @@ if (nodes != 0) {
 }
 #endif
 return alone ? 0 : 1;
-""".replace("@WOOP@\n", _WOOP.lstrip("\n"))
+""")
 
 
 @wp.func_native(_TREE_PACKET)

@@ -157,46 +157,40 @@ def kernels_for(F: Features) -> SimpleNamespace:
         one_s = int(0)
         mixed = bool(False)
         while g_j < n_pix:
-            if g_s >= g_end:
-                # the pixel's samples are all taken: on to the next
-                if g_end <= s0 and s0 == 0:
-                    start_empty(film, pixel0 + g_j)
-                g_j += 1
-                g_s = s0
-                if g_j < n_pix:
-                    g_end = wp.min(s1, film.limit[pixel0 + g_j])
-                    g_key = pixel_key(params.seed, pixel0 + g_j)
-                continue
             lanes = int(0)
-            p_j = g_j
-            p_key = g_key
-            one_s = g_s
-            mixed = False
-            if wp.static(packets):
-                if g_end - g_s >= PACKET:
-                    # a whole packet from this pixel
-                    lanes = PACKET
-                    g_s += PACKET
-                else:
+            mixed = bool(False)
+            while g_j < n_pix:
+                if g_s >= g_end:
+                    # the pixel's samples are all taken: on to the next
+                    if g_end <= s0 and s0 == 0:
+                        start_empty(film, pixel0 + g_j)
+                    g_j += 1
+                    g_s = s0
+                    if g_j < n_pix:
+                        g_end = wp.min(s1, film.limit[pixel0 + g_j])
+                        g_key = pixel_key(params.seed, pixel0 + g_j)
+                    continue
+                if lanes == 0:
+                    p_j = g_j
+                    p_key = g_key
+                    one_s = g_s
+                    if wp.static(not packets):
+                        lanes = g_end - g_s  # without trees: the pixel's samples one at a time
+                        g_s = g_end
+                        break
+                    if g_end - g_s >= PACKET:
+                        # a whole packet from this pixel
+                        lanes = PACKET
+                        g_s += PACKET
+                        break
                     mixed = True  # up to PACKET samples, from the next pixels too
-                while lanes < PACKET and g_j < n_pix:
-                    if g_s < g_end:
-                        lane_j[lanes] = g_j
-                        lane_s[lanes] = g_s
-                        lane_key[lanes] = g_key
-                        lanes += 1
-                        g_s += 1
-                    else:
-                        if g_end <= s0 and s0 == 0:
-                            start_empty(film, pixel0 + g_j)
-                        g_j += 1
-                        g_s = s0
-                        if g_j < n_pix:
-                            g_end = wp.min(s1, film.limit[pixel0 + g_j])
-                            g_key = pixel_key(params.seed, pixel0 + g_j)
-            else:
-                lanes = g_end - g_s  # without trees: the pixel's samples one at a time
-                g_s = g_end
+                lane_j[lanes] = g_j
+                lane_s[lanes] = g_s
+                lane_key[lanes] = g_key
+                lanes += 1
+                g_s += 1
+                if lanes == PACKET:
+                    break
             if lanes == 0:
                 break
             packed = False
