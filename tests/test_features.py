@@ -197,6 +197,58 @@ def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by
     assert a_adaptive.tobytes() == b_adaptive.tobytes()
 
 
+
+def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monkeypatch):
+    """With camera packets and area lights (and no secondary rays) a packet's shading points draw
+    each area light together (``lights.area_lights_packet``; on the CPU a rectangle's draws as
+    clang vectors, ``shapes.rect_draw_packet``). Every lane's sample must be the one it gets
+    alone, bit for bit: rectangles near enough to be drawn by solid angle (which the scalar draw
+    takes) and farther ones, a sheared one, lights below some points' horizon and behind others,
+    a sphere and a disk light, one and three samples per light, specular materials, both
+    light-sampling modes, full and part packets, packets over several pixels (adaptive counts)."""
+    from warprt.trace import PACKET
+
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),
+                       indexing="ij")
+    verts = np.stack([(0.6 + 0.25 * np.cos(v)) * np.cos(u), 0.25 + 0.25 * np.sin(v), (0.6 + 0.25 * np.cos(v)) * np.sin(u)],
+                     -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(16), np.arange(8), indexing="ij")
+    a, b = i * 8 + j, ((i + 1) % 16) * 8 + j
+    c, d = ((i + 1) % 16) * 8 + (j + 1) % 8, i * 8 + (j + 1) % 8
+    faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
+    shapes = (warprt.Plane(material="floor"), warprt.Mesh(vertices=verts, faces=faces, material="ball"),
+              warprt.Sphere(center=(-1.0, 0.3, 0.6), radius=0.3, material="shiny"),
+              warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="floor"))
+    lights = (
+        # near the floor: drawn by solid angle below it, by the cosine warp farther off
+        warprt.RectLight(corner=(-2.2, 0.45, -1.0), edge1=(1.2, 0.0, 0.0), edge2=(0.0, 0.0, 0.8), radiance=(2.0, 1.8, 1.5)),
+        # far, tilted, and sheared (never by solid angle), three samples
+        warprt.RectLight(corner=(2.0, 2.5, -1.0), edge1=(0.0, 0.6, 0.6), edge2=(0.4, -0.6, 0.3), radiance=(1.5, 1.5, 2.0),
+                         samples=3),
+        warprt.SphereLight(center=(-1.5, 1.5, 1.0), radius=0.2, radiance=(3.0, 3.0, 3.0)),
+        warprt.DiskLight(center=(0.0, 2.0, 1.5), normal=(0.0, -1.0, -0.3), radius=0.3, radiance=(2.0, 2.0, 2.0)),
+        warprt.PointLight(position=(1.0, 2.0, 2.0), intensity=0.5),
+    )
+    materials = {"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40),
+                 "shiny": warprt.Material(kd=0.3, ks=0.6, p=200)}
+    camera = warprt.Camera(eye=(0.3, 1.6, 3.0), look_at=(0.0, 0.3, 0.0), width=24, height=18)
+    spp = PACKET + 3  # a full packet and a part one per pixel
+    for mode in ("cosine", "uniform"):
+        scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(
+            light_sampling=mode)
+        ren = warprt.Renderer(scene, device=device)
+        assert ren.features.camera_packets and ren.features.area_lights and not ren.features.secondary
+        a = ren.render(spp=spp, seed=4, progress=False).image
+        a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
+        with monkeypatch.context() as m:
+            m.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
+            alone = warprt.Renderer(scene, device=device)  # every camera sample alone: one a pass and thread
+            b = alone.render(spp=spp, seed=4, progress=False, pass_spp=1).image
+            b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
+        assert a.tobytes() == b.tobytes(), mode
+        assert a_adaptive.tobytes() == b_adaptive.tobytes(), mode
+        assert a.min() >= 0.0 and a.mean() > 0.05
+
 def test_long_rectangles_boxed_in_pieces_find_the_same_hits_and_shadows(device, monkeypatch):
     """Long thin opaque bars tilted off the axes go into the BVH as pieces
     (``shapes.rect_pieces``); a transparent bar stays whole, so its shadow counts one crossing.

@@ -33,11 +33,11 @@ from ._warp import build_once
 from .camera import camera_ray
 from .film import FilmData, luminance, sanitize
 from .geometry import spawn_origin
-from .lights import make_lights
+from .lights import LightPacket, ShadePacket, make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
 from .shading import fresnel, mul_sat, reflect, refract
-from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketI, make_trace
+from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketF, PacketI, make_trace
 
 STACK_SIZE = 16
 PacketU = wp.types.vector(length=PACKET, dtype=wp.uint32)  # a packet's lanes' pixel keys
@@ -91,6 +91,10 @@ def kernels_for(F: Features) -> SimpleNamespace:
     packets = F.camera_packets
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
+    area_lights_packet = lights.area_lights_packet
+    # a packet's shading points drawn their area lights' samples together (lights.area_lights_packet):
+    # with camera packets, area lights and no secondary rays (the camera ray is the only path vertex)
+    shade_packets = packets and F.area_lights and not F.secondary
 
     @wp.func(inline=True)
     def camera_sample(cam: CameraData, params: RenderParams, pkey: wp.uint32, s: int, px: int, py: int) -> CameraSample:
@@ -228,6 +232,91 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     if wp.static(F.meshes):
                         if mesh_packed:
                             mp = mesh_packet(scene, pk, params.t_min, lanes)
+            # with area lights, a packet's camera rays are shaded together: each lane's hit and
+            # point lights first (the light its hit emits, or the background, for a lane that
+            # shades nothing), then the area lights' draws for all lanes at once; the lanes then
+            # go pixel by pixel as below, each with the sample it would have had alone
+            shaded = False
+            lit = int(0)  # the lanes with a shading point
+            sp_ = ShadePacket()
+            lp = LightPacket()
+            lr = PacketF()  # each lane's sample (rgb), or its light without the area lights
+            lg = PacketF()
+            lb = PacketF()
+            l_rays = PacketI()
+            if wp.static(shade_packets):
+                shaded = packed and scene.n_alights > 0
+                if shaded:
+                    for k in range(lanes):
+                        kk = p_key
+                        sk = one_s + k
+                        if mixed:
+                            kk = lane_key[k]
+                            sk = lane_s[k]
+                        o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                        d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                        h = Hit()
+                        if mesh_packed:
+                            h = finish_packet_lane(scene, o, d, pk.time[k], pk.best[k], pk.kind[k], pk.index[k], mp, k)
+                        else:
+                            h = finish_hit(scene, o, d, params.t_min, pk.time[k], pk.best[k], pk.kind[k], pk.index[k])
+                        l_rays[k] = 1
+                        L = wp.vec3(0.0, 0.0, 0.0)
+                        if h.kind == KIND_NONE:
+                            L += mul_sat(wp.vec3(1.0, 1.0, 1.0), scene.background)
+                        else:
+                            front = wp.dot(d, h.ng) < 0.0
+                            ng = h.ng
+                            n = h.ns
+                            if not front:
+                                ng = -ng
+                                n = -n
+                            if wp.dot(n, d) > 0.0:
+                                n = ng
+                            le = scene.mats[h.mat].emit
+                            if wp.max(le) > 0.0:
+                                if front:
+                                    L += mul_sat(wp.vec3(1.0, 1.0, 1.0), le)
+                            else:
+                                v = -d
+                                local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
+                                origin = spawn_origin(h.p, ng, h.mag, 1.0)
+                                dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, pk.time[k])
+                                l_rays[k] += int(dl[3])
+                                L = local + wp.vec3(dl[0], dl[1], dl[2])  # the local light so far
+                                lit = lit | (1 << k)
+                                sp_.px[k] = h.p[0]
+                                sp_.py[k] = h.p[1]
+                                sp_.pz[k] = h.p[2]
+                                sp_.ox[k] = origin[0]
+                                sp_.oy[k] = origin[1]
+                                sp_.oz[k] = origin[2]
+                                sp_.gx[k] = ng[0]
+                                sp_.gy[k] = ng[1]
+                                sp_.gz[k] = ng[2]
+                                sp_.nx[k] = n[0]
+                                sp_.ny[k] = n[1]
+                                sp_.nz[k] = n[2]
+                                sp_.vx[k] = v[0]
+                                sp_.vy[k] = v[1]
+                                sp_.vz[k] = v[2]
+                                kd = scene.mats[h.mat].kd
+                                ks = scene.mats[h.mat].ks
+                                sp_.kdr[k] = kd[0]
+                                sp_.kdg[k] = kd[1]
+                                sp_.kdb[k] = kd[2]
+                                sp_.ksr[k] = ks[0]
+                                sp_.ksg[k] = ks[1]
+                                sp_.ksb[k] = ks[2]
+                                sp_.p_exp[k] = scene.mats[h.mat].p
+                                sp_.time[k] = pk.time[k]
+                                sp_.key[k] = kk
+                                sp_.sample[k] = sk
+                        lr[k] = L[0]
+                        lg[k] = L[1]
+                        lb[k] = L[2]
+                    if lit != 0:
+                        lp = area_lights_packet(scene, params, sp_, lanes, lit)
             # the packet's lanes pixel by pixel: a pixel's sums are fetched before its lanes and
             # stored after them, never inside the loop over its samples (stores there kept the
             # compiler from hoisting the scene's loads out of it: 4-10% of a sample)
@@ -263,6 +352,20 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         rays = film.rays[pixel]
                         dropped = film.overflow[pixel]
                 for k in range(k_lo, k_hi):
+                    if wp.static(shade_packets):
+                        if shaded:
+                            Ls = wp.vec3(lr[k], lg[k], lb[k])
+                            rays += l_rays[k]
+                            if (lit >> k) & 1 != 0:
+                                # local = ambient + point lights, then + the area lights
+                                Ls = wp.vec3(0.0, 0.0, 0.0) + mul_sat(wp.vec3(1.0, 1.0, 1.0),
+                                                                      Ls + wp.vec3(lp.r[k], lp.g[k], lp.b[k]))
+                                rays += lp.rays[k]
+                            Ls = sanitize(Ls, params.clamp)
+                            acc = acc + Ls
+                            ys = luminance(Ls)
+                            acc_sq = acc_sq + ys * ys
+                            continue
                     s = one_s + k
                     if wp.static(packets):
                         if mixed:

@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from .accel import PacketF
 from .geometry import intersect_sphere, max_abs
 from .records import (
     KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_PLANE, KIND_RECT, KIND_SPHERE, DiskRec, PlaneRec, RectRec,
@@ -348,6 +349,137 @@ def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
     dsk = square_to_disk(u) * rec.r
     y = rec.c + frame_from_z(rec.n, wp.vec3(dsk[0], dsk[1], 0.0))
     return planar_emitter(y, rec.n, wp.pi * rec.r * rec.r, max_abs(rec.c) + rec.r, p)
+
+
+
+# Rectangle lights drawn for a packet's 8 shading points at once (``rect_draw_packet``): what
+# ``prepare_rect_emitter`` and ``sample_rect_prepared`` compute for each lane, area draws with or
+# without the cosine warp, as clang vectors on the CPU: the same operations in the same order
+# (Warp's CPU fmax / fmin, no contraction: Warp's C++ compiler fuses nothing), so each lane's
+# point, direction and 1/density are the scalar draw's bit for bit. About a fifth of the scalar
+# draw's time per lane (docs/benchmarks.md, levers). Lanes the rectangle is drawn for by solid
+# angle (near it, square edges: the spherical rectangle) come back flagged for the scalar draw,
+# as every lane does on CUDA.
+_RECT_DRAW_PACKET = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Px, Py, Pz, Nx, Ny, Nz, U0, U1;
+__builtin_memcpy(&Px, &px, 32); __builtin_memcpy(&Py, &py, 32); __builtin_memcpy(&Pz, &pz, 32);
+__builtin_memcpy(&Nx, &nx, 32); __builtin_memcpy(&Ny, &ny, 32); __builtin_memcpy(&Nz, &nz, 32);
+__builtin_memcpy(&U0, &ux, 32); __builtin_memcpy(&U1, &uy, 32);
+// Warp's CPU fmax and fmin (builtin.h; clamp is fmin(fmax(lo, x), hi)), lane by lane
+auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
+auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
+auto vsqrt = [](v8 x) -> v8 { return __builtin_elementwise_sqrt(x); };
+const v8 zero = (v8)(0.0f), one = (v8)(1.0f);
+// sampling.sample_linear and sampling.sample_two_linear (both halves computed, then selected)
+auto sample_linear = [&](v8 u, v8 a, v8 b) -> v8 {
+    const v8 x = (u * (a + b)) / (a + vsqrt(((1.0f - u) * a) * a + (u * b) * b));
+    return x >= 0.0f ? vmin(x, one) : zero;
+};
+auto sample_two_linear = [&](v8 u, v8 a, v8 b, v8 c) -> v8 {
+    const v8 m0 = a + b, m1 = b + c;
+    const v8 t = u * (m0 + m1);
+    const v8 r0 = 0.5f * sample_linear(vmin(t / m0, one), a, b);
+    const v8 r1 = 0.5f + 0.5f * sample_linear(vmin(vmax(zero, (t - m0) / m1), one), b, c);
+    return t < m0 ? r0 : r1;
+};
+const float cx = c[0], cy = c[1], cz = c[2], ax = e1[0], ay = e1[1], az = e1[2], bx = e2[0], by = e2[1], bz = e2[2];
+// the lanes asked for whose p is in front of the one-sided emitter: dot(rec.n, p - rec.c) > 0
+const v8 qx = Px - cx, qy = Py - cy, qz = Pz - cz;
+i8 ok = (ln[0] * qx + ln[1] * qy + ln[2] * qz) > 0.0f;
+i8 asked;
+for (int l = 0; l < 8; ++l) asked[l] = (lanes >> l) & 1 ? -1 : 0;
+ok &= asked;
+// near: |e1| + |e2| >= near_at |centre - p|; there a rectangle with square edges is drawn by
+// solid angle, which the scalar draw does
+const float sx = ax + bx, sy = ay + by, sz = az + bz;
+const float ctx = cx + 0.5f * sx, cty = cy + 0.5f * sy, ctz = cz + 0.5f * sz;
+const float len1 = sqrtf(ax * ax + ay * ay + az * az), len2 = sqrtf(bx * bx + by * by + bz * bz);
+const float near_at = cosine != 0 ? 3.0f : 1.0f;
+const v8 dcx = ctx - Px, dcy = cty - Py, dcz = ctz - Pz;
+const i8 near = (len1 + len2) >= near_at * vsqrt(dcx * dcx + dcy * dcy + dcz * dcz);
+const i8 solid = near & (i8)(square != 0 ? -1 : 0);
+for (int l = 0; l < 8; ++l) res |= ok[l] & solid[l] ? 1 << (8 + l) : 0;
+ok &= ~solid;
+bool any = false;
+for (int l = 0; l < 8; ++l) any = any || ok[l];
+if (any) {
+    v8 X = U0, Y = U1, pdf = one;
+    if (cosine != 0) {
+        // shapes.rect_cosine_weights (by area), then sampling.grid_warp_setup
+        const v8 d0x = cx - Px, d0y = cy - Py, d0z = cz - Pz;
+        v8 W[3][3];
+        v8 top = zero;
+        for (int i = 0; i < 3; ++i) {
+            const float si = 0.5f * (float)i;
+            for (int j = 0; j < 3; ++j) {
+                const float sj = 0.5f * (float)j;
+                const v8 dx = (d0x + si * ax) + sj * bx, dy = (d0y + si * ay) + sj * by, dz = (d0z + si * az) + sj * bz;
+                const v8 r = vsqrt(dx * dx + dy * dy + dz * dz);
+                v8 v = vmax((Nx * dx + Ny * dy + Nz * dz) / r, zero);
+                v = v / ((r * r) * r);
+                W[i][j] = v;
+                top = vmax(top, v);
+            }
+        }
+        ok &= (top > 0.0f) & (top < 3.0e38f);
+        const v8 lo = 0.01f * top;  // COSINE_FLOOR
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) W[i][j] = vmax(W[i][j], lo);
+        ok &= W[0][0] > 0.0f;
+        const v8 g0 = (W[0][0] + 2.0f * W[1][0]) + W[2][0];
+        const v8 g1 = (W[0][1] + 2.0f * W[1][1]) + W[2][1];
+        const v8 g2 = (W[0][2] + 2.0f * W[1][2]) + W[2][2];
+        v8 total = zero + ((W[0][0] + 2.0f * W[0][1]) + W[0][2]) * 1.0f;
+        total = total + ((W[1][0] + 2.0f * W[1][1]) + W[1][2]) * 2.0f;
+        total = total + ((W[2][0] + 2.0f * W[2][1]) + W[2][2]) * 1.0f;
+        // sampling.grid_warp_sample: y from the rows' masses, x along the row interpolated at y
+        Y = sample_two_linear(U1, g0, g1, g2);
+        const i8 low = Y < 0.5f;
+        const v8 t0 = 2.0f * Y, t1 = 2.0f * Y - 1.0f;
+        const v8 A = low ? (1.0f - t0) * W[0][0] + t0 * W[0][1] : (1.0f - t1) * W[0][1] + t1 * W[0][2];
+        const v8 B = low ? (1.0f - t0) * W[1][0] + t0 * W[1][1] : (1.0f - t1) * W[1][1] + t1 * W[1][2];
+        const v8 C = low ? (1.0f - t0) * W[2][0] + t0 * W[2][1] : (1.0f - t1) * W[2][1] + t1 * W[2][2];
+        X = sample_two_linear(U0, A, B, C);
+        const v8 f = X < 0.5f ? A + (B - A) * (2.0f * X) : B + (C - B) * (2.0f * X - 1.0f);
+        pdf = (16.0f * f) / total;
+    }
+    // the point by area and what it gives p (shapes.planar_emitter), over the warp's density
+    const v8 yx = (cx + X * ax) + Y * bx, yy = (cy + X * ay) + Y * by, yz = (cz + X * az) + Y * bz;
+    const v8 tx = yx - Px, ty = yy - Py, tz = yz - Pz;
+    const v8 dist = vsqrt(tx * tx + ty * ty + tz * tz);
+    ok &= (dist > 0.0f) & (i8)(area > 0.0f ? -1 : 0);
+    const v8 lx = tx / dist, ly = ty / dist, lz = tz / dist;
+    const v8 cos_l = -(ln[0] * lx + ln[1] * ly + ln[2] * lz);
+    ok &= cos_l > 0.0f;
+    const v8 ip = ((area * cos_l) / (dist * dist)) / pdf;
+    __builtin_memcpy(&out_y0, &yx, 32); __builtin_memcpy(&out_y1, &yy, 32); __builtin_memcpy(&out_y2, &yz, 32);
+    __builtin_memcpy(&out_l0, &lx, 32); __builtin_memcpy(&out_l1, &ly, 32); __builtin_memcpy(&out_l2, &lz, 32);
+    __builtin_memcpy(&out_ip, &ip, 32);
+    for (int l = 0; l < 8; ++l) res |= ok[l] ? 1 << l : 0;
+}
+#else
+res = lanes << 8;  // no clang vectors (CUDA): every lane to the scalar draw
+#endif
+return res;
+"""
+
+
+@wp.func_native(_RECT_DRAW_PACKET)
+def rect_draw_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, ln: wp.vec3, area: float, cosine: int, square: int,
+                     lanes: int, px: PacketF, py: PacketF, pz: PacketF, nx: PacketF, ny: PacketF, nz: PacketF,
+                     ux: PacketF, uy: PacketF, out_y0: wp.ref[PacketF], out_y1: wp.ref[PacketF],
+                     out_y2: wp.ref[PacketF], out_l0: wp.ref[PacketF], out_l1: wp.ref[PacketF],
+                     out_l2: wp.ref[PacketF], out_ip: wp.ref[PacketF]) -> int:
+    """For each lane in the bit mask ``lanes`` (shading point p, shading normal n, 2D sample u) of
+    the rectangle (corner c, edges e1, e2, unit normal ln, area, ``square``: its edges are square):
+    the drawn point, the unit direction to it and 1/density, as ``prepare_rect_emitter`` then
+    ``sample_rect_prepared`` give them. Returns bit l set where lane l has a sample, bit 8 + l
+    where the scalar draw must take lane l (see above)."""
+    ...
 
 
 @wp.func
