@@ -78,7 +78,7 @@ def make_lights(F: Features) -> SimpleNamespace:
     shadow = make_trace(F).shadow
     transmittance = make_trace(F).transmittance
 
-    @wp.func
+    @wp.func(inline=True)
     def one_area_light(scene: SceneData, params: RenderParams, j: int, pkey: wp.uint32, sample: int,
                        key: wp.uint32, p: wp.vec3, origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3,
                        kd: wp.vec3, ks: wp.vec3, p_exp: float, time: float) -> wp.vec4:
