@@ -116,7 +116,8 @@ def assert_same_as_the_loops(scene, with_bvh, device, monkeypatch):
     np.testing.assert_array_equal(ha["t"], hb["t"])
 
 
-def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, monkeypatch):
+@pytest.mark.parametrize("sampler", ["stratified", "sobol"])
+def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, monkeypatch, sampler):
     """With the analytic BVH, up to ``trace.PACKET`` camera rays of a pixel go through it
     together (``trace_packet``); without it each goes alone through the loops. Full packets,
     a partial one (11 spp), per-pixel counts (adaptive), rays with their own lens origins and
@@ -138,7 +139,7 @@ def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, 
     shapes += (warprt.Box(center=(0.8, -1.2, 0.5), size=(0.5, 0.4, 0.6), material="floor"),
                warprt.Plane(point=(0, -2, 0), material="floor"))
     scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0, 0.5, 6), look_at=(0, 0, 0), width=24, height=18,
-                                                       aperture=0.08, focus_distance=6.0))
+                                                       aperture=0.08, focus_distance=6.0)).with_settings(sampler=sampler)
     assert warprt.Renderer(scene, device=device).features.key == "lens+motion+solids+analytic_bvh"
     # both on the all-features kernel the suite compiles anyway: without the tree its camera rays
     # go one by one (the packet code runs only where the scene has an analytic BVH)
@@ -153,7 +154,8 @@ def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, 
         assert a.tobytes() == b.tobytes(), (spp, adaptive)
 
 
-def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by_one(device, monkeypatch):
+@pytest.mark.parametrize("sampler", ["stratified", "sobol"])
+def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by_one(device, monkeypatch, sampler):
     """With meshes, up to ``trace.PACKET`` camera rays also go through each mesh's tree together
     (``trace.mesh_packet``; on the CPU ``accel.mesh_tree_packet``), each bounded by its own
     analytic hit; a packet takes the next pixels' samples too where a pixel has fewer left. A
@@ -181,7 +183,7 @@ def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by
     shapes = (torus, posed, warprt.Sphere(center=(0.35, 1.15, 2.1), radius=0.2, material="floor"),
               warprt.Plane(point=(0, -0.5, 0), material="floor"))
     scene = _scene(shapes=shapes, camera=warprt.Camera(eye=(0.4, 1.8, 3.2), look_at=(0.2, 0, 0), width=24, height=18,
-                                                       aperture=0.05, focus_distance=3.5))
+                                                       aperture=0.05, focus_distance=3.5)).with_settings(sampler=sampler)
     ren = warprt.Renderer(scene, device=device)
     assert ren.features.meshes and ren.built.analytic_bvh is None
     spp = PACKET + 3  # one full packet and a part one too small for a packet, after the first pass
@@ -198,14 +200,16 @@ def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by
 
 
 
-def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monkeypatch):
+@pytest.mark.parametrize("sampler", ["stratified", "sobol"])
+def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monkeypatch, sampler):
     """With camera packets and area lights (and no secondary rays) a packet's shading points draw
     each area light together (``lights.area_lights_packet``; on the CPU a rectangle's draws as
     clang vectors, ``shapes.rect_draw_packet``). Every lane's sample must be the one it gets
     alone, bit for bit: rectangles near enough to be drawn by solid angle (which the scalar draw
     takes) and farther ones, a sheared one, lights below some points' horizon and behind others,
     a sphere and a disk light, one and three samples per light, specular materials, both
-    light-sampling modes, full and part packets, packets over several pixels (adaptive counts)."""
+    light-sampling modes, full and part packets, packets over several pixels (adaptive counts),
+    and with Sobol points drawn for the 8 lanes at once (``sampling.sobol_packet``)."""
     from warprt.trace import PACKET
 
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),
@@ -235,7 +239,7 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     spp = PACKET + 3  # a full packet and a part one per pixel
     for mode in ("cosine", "uniform"):
         scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(
-            light_sampling=mode)
+            light_sampling=mode, sampler=sampler)
         ren = warprt.Renderer(scene, device=device)
         assert ren.features.camera_packets and ren.features.area_lights and not ren.features.secondary
         a = ren.render(spp=spp, seed=4, progress=False).image

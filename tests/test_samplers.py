@@ -116,3 +116,44 @@ def test_unknown_sampler_is_an_error():
         pixel_samples("halton", [0], 4)
     with pytest.raises(RenderError, match="unknown sampler"):
         pixel_samples_1d("halton", [0], 4)
+
+
+def test_sobol_points_drawn_for_a_packet_are_each_lanes_own():
+    """``sampling.sobol_packet`` (a packet's 8 lanes at once, clang vectors on the CPU) gives every
+    lane the point ``sample_2d_keyed`` gives it alone, bit for bit: random pixel keys, sample
+    indices over the whole 32-bit range and dimension keys, high bits included."""
+    import warp as wp
+
+    from warprt.accel import PacketF, PacketI, PacketU
+    from warprt.sampling import SAMPLER_SOBOL, sample_2d_keyed, sobol_packet
+
+    @wp.kernel(enable_backward=False)
+    def both(keys: wp.array(dtype=wp.uint32), index: wp.array(dtype=wp.int32), dims: wp.array(dtype=wp.uint32),
+             packed: wp.array(dtype=wp.vec2), alone: wp.array(dtype=wp.vec2)):
+        g = wp.tid()
+        k8 = PacketU()
+        i8 = PacketI()
+        for lane in range(8):
+            k8[lane] = keys[g * 8 + lane]
+            i8[lane] = index[g * 8 + lane]
+        x = PacketF()
+        y = PacketF()
+        sobol_packet(k8, i8, dims[g], x, y)
+        for lane in range(8):
+            packed[g * 8 + lane] = wp.vec2(x[lane], y[lane])
+            alone[g * 8 + lane] = sample_2d_keyed(SAMPLER_SOBOL, keys[g * 8 + lane], index[g * 8 + lane], 64, dims[g])
+
+    rng = np.random.default_rng(11)
+    n = 8 * 4096
+    keys = rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
+    index = np.concatenate([np.arange(n // 2), rng.integers(0, 2 ** 31, n - n // 2)]).astype(np.int32)
+    dims = rng.integers(0, 2 ** 32, n // 8, dtype=np.uint64).astype(np.uint32)
+    dims[:4] = (DIM_FILM, DIM_LENS, DIM_TIME, 0x80000000)
+    packed = wp.zeros(n, dtype=wp.vec2, device="cpu")
+    alone = wp.zeros(n, dtype=wp.vec2, device="cpu")
+    wp.launch(both, dim=n // 8, device="cpu", inputs=[wp.array(keys, dtype=wp.uint32, device="cpu"),
+                                                     wp.array(index, dtype=wp.int32, device="cpu"),
+                                                     wp.array(dims, dtype=wp.uint32, device="cpu"), packed, alone])
+    a, b = packed.numpy(), alone.numpy()
+    assert a.tobytes() == b.tobytes()
+    assert (a >= 0).all() and (a < 1).all() and len(np.unique(a[:, 0])) > n // 2

@@ -76,6 +76,7 @@ PACKET = 8  # camera rays of one pixel traced together through the analytic BVH 
 PACKET_MISS = 3.0e38  # a child's entry distance when no lane meets it
 PacketF = wp.types.vector(length=PACKET, dtype=wp.float32)
 PacketI = wp.types.vector(length=PACKET, dtype=wp.int32)
+PacketU = wp.types.vector(length=PACKET, dtype=wp.uint32)  # a packet's lanes' pixel keys
 
 # One node of the analytic BVH against a packet's 8 rays: per child, the least entry distance
 # over the lanes whose ray meets the child's box before that lane's nearest hit (``slab`` and the

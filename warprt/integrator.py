@@ -35,12 +35,14 @@ from .film import FilmData, luminance, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
-from .sampling import frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, square_to_cos_power
+from .sampling import (
+    SAMPLER_SOBOL, frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, sobol_packet, square_to_cos_power,
+)
 from .shading import fresnel, mul_sat, reflect, refract
+from .accel import PacketU
 from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketF, PacketI, make_trace
 
 STACK_SIZE = 16
-PacketU = wp.types.vector(length=PACKET, dtype=wp.uint32)  # a packet's lanes' pixel keys
 DIM_FILM, DIM_LENS, DIM_TIME = 0, 1, 2  # dimension keys of the camera sample
 ROOT_KEY = 0x51ED270B  # dimension key of the camera ray's path vertex
 KEY_GLOSSY_REFLECT, KEY_FROSTED_REFRACT = 1, 2  # lobe samples at a vertex: hash2(vertex key, ...)
@@ -97,25 +99,39 @@ def kernels_for(F: Features) -> SimpleNamespace:
     shade_packets = packets and F.area_lights and not F.secondary
 
     @wp.func(inline=True)
-    def camera_sample(cam: CameraData, params: RenderParams, pkey: wp.uint32, s: int, px: int, py: int) -> CameraSample:
-        """Sample s's camera ray of raster pixel (px, py): film position, lens position and time
-        from the sampler (dimensions DIM_FILM, DIM_LENS, DIM_TIME)."""
-        uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
+    def camera_from(cam: CameraData, params: RenderParams, uf: wp.vec2, ut: float, ul_in: wp.vec2, px: int,
+                    py: int) -> CameraSample:
+        """The camera ray of raster pixel (px, py) from its film position uf, time sample ut and
+        lens position ul_in (the last two read only where the camera moves, or has a lens)."""
         time = cam.t_open
         if wp.static(F.motion):
             if params.moving != 0 and cam.t_close > cam.t_open:
-                ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
                 time = cam.t_open + (cam.t_close - cam.t_open) * ut
         ul = wp.vec2(0.5, 0.5)
         if wp.static(F.lens):
             if cam.lens_radius > 0.0:
-                ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
+                ul = ul_in
         ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
         cs = CameraSample()
         cs.o = ray.o
         cs.d = ray.d
         cs.time = time
         return cs
+
+    @wp.func(inline=True)
+    def camera_sample(cam: CameraData, params: RenderParams, pkey: wp.uint32, s: int, px: int, py: int) -> CameraSample:
+        """Sample s's camera ray of raster pixel (px, py): film position, lens position and time
+        from the sampler (dimensions DIM_FILM, DIM_LENS, DIM_TIME)."""
+        uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
+        ut = float(0.0)
+        if wp.static(F.motion):
+            if params.moving != 0 and cam.t_close > cam.t_open:
+                ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
+        ul = wp.vec2(0.5, 0.5)
+        if wp.static(F.lens):
+            if cam.lens_radius > 0.0:
+                ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
+        return camera_from(cam, params, uf, ut, ul, px, py)
 
     @wp.func(inline=True)
     def render_pixels(scene: SceneData, cam: CameraData, params: RenderParams, px0: int, py: int, pixel0: int,
@@ -206,6 +222,31 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 if wp.static(F.meshes):
                     mesh_packed = meshes and lanes >= MESH_PACKET_MIN
                     packed = packed or mesh_packed
+                # with Sobol points, a packet's camera samples drawn together (sampling.sobol_packet;
+                # lanes that go alone draw theirs alone)
+                sobol = packed and params.sampler == SAMPLER_SOBOL
+                ufx = PacketF()
+                ufy = PacketF()
+                utx = PacketF()
+                uty = PacketF()
+                ulx = PacketF()
+                uly = PacketF()
+                if sobol:
+                    keys = PacketU()
+                    idx = PacketI()
+                    for k in range(lanes):
+                        keys[k] = p_key
+                        idx[k] = one_s + k
+                        if mixed:
+                            keys[k] = lane_key[k]
+                            idx[k] = lane_s[k]
+                    sobol_packet(keys, idx, wp.uint32(DIM_FILM), ufx, ufy)
+                    if wp.static(F.motion):
+                        if params.moving != 0 and cam.t_close > cam.t_open:
+                            sobol_packet(keys, idx, wp.uint32(DIM_TIME), utx, uty)
+                    if wp.static(F.lens):
+                        if cam.lens_radius > 0.0:
+                            sobol_packet(keys, idx, wp.uint32(DIM_LENS), ulx, uly)
                 for k in range(lanes):
                     jk = p_j
                     sk = one_s + k
@@ -214,7 +255,12 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         jk = lane_j[k]
                         sk = lane_s[k]
                         kk = lane_key[k]
-                    cs = camera_sample(cam, params, kk, sk, px0 + jk, py)
+                    cs = CameraSample()
+                    if sobol:
+                        cs = camera_from(cam, params, wp.vec2(ufx[k], ufy[k]), utx[k], wp.vec2(ulx[k], uly[k]), px0 + jk,
+                                         py)
+                    else:
+                        cs = camera_sample(cam, params, kk, sk, px0 + jk, py)
                     pk.ox[k] = cs.o[0]
                     pk.oy[k] = cs.o[1]
                     pk.oz[k] = cs.o[2]

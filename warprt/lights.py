@@ -15,15 +15,13 @@ from types import SimpleNamespace
 import warp as wp
 
 from ._warp import build_once
-from .accel import PACKET, PacketF, PacketI
+from .accel import PACKET, PacketF, PacketI, PacketU
 from .geometry import max_abs, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, SceneData
-from .sampling import hash2, is_rectangle_edges, sample_2d_keyed
+from .sampling import SAMPLER_SOBOL, hash2, is_rectangle_edges, sample_2d_keyed, sobol_packet
 from .shading import blinn_phong, mul_sat
 from .shapes import prepare_emitter, rect_draw_packet, sample_emitter
 from .trace import make_trace
-
-PacketU = wp.types.vector(length=PACKET, dtype=wp.uint32)  # a packet's lanes' pixel keys
 
 LIGHT_DIM_BASE = 16  # dimension keys of area light j: hash2(path key, LIGHT_DIM_BASE + j)
 ROOT_KEY = 0x51ED270B  # dimension key of the camera ray's path vertex
@@ -163,11 +161,18 @@ def make_lights(F: Features) -> SimpleNamespace:
                     ag[k] = 0.0
                     ab[k] = 0.0
                 for s in range(ns):
-                    for k in range(lanes):
-                        if (live >> k) & 1 != 0:
-                            u = sample_2d_keyed(params.sampler, sp.key[k], sp.sample[k] * ns + s, params.spp * ns, dim)
-                            ux[k] = u[0]
-                            uy[k] = u[1]
+                    if params.sampler == SAMPLER_SOBOL:
+                        idx = PacketI()
+                        for k in range(lanes):
+                            idx[k] = sp.sample[k] * ns + s
+                        sobol_packet(sp.key, idx, dim, ux, uy)  # the 8 lanes' points at once
+                    else:
+                        for k in range(lanes):
+                            if (live >> k) & 1 != 0:
+                                u = sample_2d_keyed(params.sampler, sp.key[k], sp.sample[k] * ns + s, params.spp * ns,
+                                                    dim)
+                                ux[k] = u[0]
+                                uy[k] = u[1]
                     m = rect_draw_packet(rec.c, rec.e1, rec.e2, rec.n, area, params.light_sampling, square, live,
                                          sp.px, sp.py, sp.pz, sp.nx, sp.ny, sp.nz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
                     scalar = m >> 8

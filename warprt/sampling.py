@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .accel import PacketF, PacketI, PacketU
 from .scene.description import SAMPLERS
 
 SAMPLER_IDS = {name: i for i, name in enumerate(SAMPLERS)}  # RenderParams.sampler
@@ -233,6 +234,67 @@ def sample_1d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp
     j = u32_to_unit(hash2(hash2(key, wp.uint32(0x7A4)), wp.uint32(index)))
     return (float(s) + j) / float(n)
 
+
+
+# ``sample_2d_keyed``'s Sobol points for the 8 lanes of a packet at once (each lane its pixel key
+# and sample index, one dimension key): the same integer hashes and scrambles as clang vectors
+# on the CPU, so every lane's point is the scalar one bit for bit; lane by lane elsewhere.
+_SOBOL_PACKET = r"""
+// the scalar functions' operations, for one lane (unsigned) or for 8 (clang vectors)
+auto hash_u32 = [](auto x) {
+    x = x ^ (x >> 16u); x = x * 0x7FEB352Du; x = x ^ (x >> 15u); x = x * 0x846CA68Bu; x = x ^ (x >> 16u);
+    return x;
+};
+auto hash2 = [&](auto a, unsigned b) { return hash_u32(a ^ (((hash_u32(b) + 0x9E3779B9u) + (a << 6u)) + (a >> 2u))); };
+auto reverse_bits = [](auto x) {
+    x = ((x >> 1u) & 0x55555555u) | ((x & 0x55555555u) << 1u);
+    x = ((x >> 2u) & 0x33333333u) | ((x & 0x33333333u) << 2u);
+    x = ((x >> 4u) & 0x0F0F0F0Fu) | ((x & 0x0F0F0F0Fu) << 4u);
+    x = ((x >> 8u) & 0x00FF00FFu) | ((x & 0x00FF00FFu) << 8u);
+    return (x >> 16u) | (x << 16u);
+};
+auto owen = [&](auto x, auto seed) {
+    x = reverse_bits(x);
+    x = x + seed;
+    x = x ^ (x * 0x6C50B47Cu); x = x ^ (x * 0xB82F1E52u); x = x ^ (x * 0xC7AFE638u); x = x ^ (x * 0x8D22F6E6u);
+    return reverse_bits(x);
+};
+// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled
+auto point = [&](auto K, auto I, auto& x, auto& y) {
+    const auto key = hash2(K, dim);
+    const auto i = owen(I, hash2(key, 0x5B0u));
+    x = owen(reverse_bits(i), hash2(key, 0x5B1u));
+    auto z = i;
+    z = z ^ ((z >> 1u) & 0x55555555u); z = z ^ ((z >> 2u) & 0x33333333u); z = z ^ ((z >> 4u) & 0x0F0F0F0Fu);
+    z = z ^ ((z >> 8u) & 0x00FF00FFu); z = z ^ ((z >> 16u) & 0x0000FFFFu);
+    y = owen(reverse_bits(z), hash2(key, 0x5B2u));
+};
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef unsigned int u8v __attribute__((ext_vector_type(8)));
+typedef float v8 __attribute__((ext_vector_type(8)));
+u8v K, I, X, Y;
+__builtin_memcpy(&K, &keys, 32);
+__builtin_memcpy(&I, &index, 32);
+point(K, I, X, Y);
+const v8 fx = __builtin_convertvector(X >> 8u, v8) * 5.9604644775390625e-08f;  // u32_to_unit
+const v8 fy = __builtin_convertvector(Y >> 8u, v8) * 5.9604644775390625e-08f;
+__builtin_memcpy(&out_x, &fx, 32);
+__builtin_memcpy(&out_y, &fy, 32);
+#else
+for (int l = 0; l < 8; ++l) {
+    unsigned X, Y;
+    point((unsigned)keys[l], (unsigned)index[l], X, Y);
+    out_x[l] = (float)(X >> 8u) * 5.9604644775390625e-08f;
+    out_y[l] = (float)(Y >> 8u) * 5.9604644775390625e-08f;
+}
+#endif
+"""
+
+
+@wp.func_native(_SOBOL_PACKET)
+def sobol_packet(keys: PacketU, index: PacketI, dim: wp.uint32, out_x: wp.ref[PacketF], out_y: wp.ref[PacketF]):
+    """``sample_2d_keyed(SAMPLER_SOBOL, keys[l], index[l], spp, dim)`` for the 8 lanes l."""
+    ...
 
 # --- sampling maps -------------------------------------------------------------------------------
 
