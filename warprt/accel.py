@@ -103,9 +103,9 @@ for (int c = 0; c < 2; ++c) {
     const v8 t_in = lxy > lz ? lxy : lz;
     const v8 t_out = gxy < gz ? gxy : gz;
     const v8 e = ((t_in <= t_out) & (t_out >= 0.0f) & (t_in <= B)) ? t_in : (v8)(3.0e38f);
-    float m = 3.0e38f;
-    for (int k = 0; k < 8; ++k) m = e[k] < m ? e[k] : m;
-    out[c] = m;
+    // the least entry over the lanes: the scalar loop's value (a zero's sign aside, which only
+    // comparisons see)
+    out[c] = __builtin_reduce_min(e);
 }
 #else
 for (int c = 0; c < 2; ++c) {
@@ -701,11 +701,8 @@ if (nodes != 0) {
             const v8 tf = g0 < gz ? g0 : gz;
             const i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
             const v8 en = h ? tn : (v8)(3.0e38f);
-            float mm = 3.0e38f;
-            unsigned mk = 0;
-            for (int l = 0; l < 8; ++l) { mm = en[l] < mm ? en[l] : mm; mk |= h[l] ? (1u << l) : 0u; }
-            e[c] = mm;
-            m[c] = mk;
+            e[c] = __builtin_reduce_min(en);  // (entries are >= +0, never NaN)
+            m[c] = (unsigned)__builtin_reduce_or(h & (i8){1, 2, 4, 8, 16, 32, 64, 128});
         }
         const int k0 = C[2 * node], k1 = C[2 * node + 1];
         bool changed = false;
