@@ -1,17 +1,20 @@
 """The render megakernel, specialised per :class:`Features` value.
 
 Per pixel sample (one thread takes a row of pixels on the CPU, one pixel on CUDA, and their
-samples pixel by pixel; with trees, camera rays go 8 at a time as a packet, from the next pixels
-too where a pixel has fewer samples left):
+samples pixel by pixel; camera rays go 8 at a time as a packet, from the next pixels too where a
+pixel has fewer samples left):
 
 1. camera sample: film position, lens position and time from the sampler (dimensions
-   ``DIM_FILM``, ``DIM_LENS``, ``DIM_TIME``);
+   ``DIM_FILM``, ``DIM_LENS``, ``DIM_TIME``; with Sobol points, drawn for a packet's lanes at
+   once, ``sampling.sobol_packet``);
 2. the camera ray goes on a fixed-size per-thread stack (``STACK_SIZE`` entries of
    ``RayEntry``: origin, direction, throughput, depth, dimension key);
 3. loop until the stack is empty: pop; nearest hit (``trace``); add throughput × (emission, or
-   ambient + direct light from ``lights``); push the mirror / glossy reflection and the
-   refraction (or, under total internal reflection, the extra reflection) with their weights,
-   unless the depth limit or the throughput cutoff stops them;
+   ambient + direct light from ``lights``; without secondary rays, a packet's area-light
+   samples are drawn for its shading points together, ``lights.area_lights_packet``); push the
+   mirror / glossy reflection and the refraction (or, under total internal reflection, the
+   extra reflection) with their weights, unless the depth limit or the throughput cutoff stops
+   them;
 4. the sample, sanitised, goes into the pixel's ``film`` sums.
 
 A push onto a full stack drops that ray and counts it (``overflow`` per pixel), so overflow is
@@ -154,9 +157,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
         dropped = int(0)
         if wp.static(F.secondary):
             stack = wp.zeros(shape=STACK_SIZE, dtype=RayEntry)
-        # with a BVH over the analytic shapes or with meshes, the camera rays of PACKET_MIN to
-        # PACKET samples go through them together (trace_packet, mesh_packet: the same hits as
-        # one by one, fewer node visits per ray)
+        # the camera rays of PACKET_MIN to PACKET samples go together, through the analytic BVH and
+        # the meshes where the scene has them (trace_packet, mesh_packet: the same hits as one by
+        # one, fewer node visits per ray)
         bvh = scene.bvh_root >= 0
         meshes = False
         if wp.static(F.meshes):
@@ -218,7 +221,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
             mp = MeshPacket()
             mesh_packed = False
             if wp.static(packets):
-                packed = bvh and lanes >= PACKET_MIN
+                packed = lanes >= PACKET_MIN  # (without trees, for the lanes' vector sampling)
                 if wp.static(F.meshes):
                     mesh_packed = meshes and lanes >= MESH_PACKET_MIN
                     packed = packed or mesh_packed

@@ -662,7 +662,8 @@ def make_trace(F: Features) -> SimpleNamespace:
         C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0."""
         pk = pk_in
         if scene.bvh_root < 0:
-            # no analytic BVH (a packet for the meshes' sake): the analytic shapes ray by ray
+            # no analytic BVH: the analytic shapes ray by ray (the packet is there for the meshes, or
+            # for the lanes' vector sampling)
             for k in range(lanes):
                 a = analytic_nearest(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]),
                                      wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]), t_min, pk.best[k], pk.time[k])
