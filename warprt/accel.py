@@ -453,10 +453,19 @@ _WOOP = r"""
         const float tt = T * rcp;
 """
 
+# the tree copy's arrays (N, C, TR) and the ray's origin, direction and 1/d (ox..., dx..., ix...);
 # the ray's shear (kx, ky, kz, Sx, Sy, Sz and the origin's sheared coordinates okx, oky, okz) for
-# ``_WOOP``, from the ray (ox, oy, oz, dx, dy, dz); and the slab tests of both children of the
+# ``_WOOP``, from the ray; and the slab tests of both children of the
 # tree copy's ``node`` (entry n0 / n1, exit f0 / f1, children k0 / k1) from its 1/d (ix, iy, iz):
 # the scalar traversals' shared pieces, spliced into each as text
+_RAY = r"""
+    const float* N = (const float*)nodes;
+    const int* C = (const int*)kids;
+    const float* TR = (const float*)tris;
+    const float ox = o[0], oy = o[1], oz = o[2], dx = d[0], dy = d[1], dz = d[2];
+    const float ix = 1.0f / (dx == 0.0f ? 1e-20f : dx), iy = 1.0f / (dy == 0.0f ? 1e-20f : dy),
+                iz = 1.0f / (dz == 0.0f ? 1e-20f : dz);
+"""
 _SHEAR = r"""
     int kz = fabsf(dx) > fabsf(dy) ? (fabsf(dx) > fabsf(dz) ? 0 : 2) : (fabsf(dy) > fabsf(dz) ? 1 : 2);
     int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
@@ -483,8 +492,8 @@ _NODE_BOXES = r"""
 
 
 def _splice(snippet: str) -> str:
-    """A traversal snippet with its shared pieces (``_WOOP``, ``_SHEAR``, ``_NODE_BOXES``) in place."""
-    for name, text in (("WOOP", _WOOP), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES)):
+    """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``) in place."""
+    for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -494,12 +503,7 @@ wp::vec_t<5, wp::float32> out;
 out[0] = -1.0f;
 #if !defined(__CUDA_ARCH__)
 if (nodes != 0) {
-    const float* N = (const float*)nodes;
-    const int* C = (const int*)kids;
-    const float* TR = (const float*)tris;
-    const float ox = o[0], oy = o[1], oz = o[2], dx = d[0], dy = d[1], dz = d[2];
-    const float ix = 1.0f / (dx == 0.0f ? 1e-20f : dx), iy = 1.0f / (dy == 0.0f ? 1e-20f : dy),
-                iz = 1.0f / (dz == 0.0f ? 1e-20f : dz);
+@RAY@
     float best = t_max, bu = 0.0f, bv = 0.0f;
     int hitp = -1;
     auto fminf = [](float a, float b) { return a < b ? a : b; };
@@ -581,12 +585,7 @@ def mesh_tree_ray(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.ui
 _TREE_OCCLUDED = _splice(r"""
 #if !defined(__CUDA_ARCH__)
 if (nodes != 0) {
-    const float* N = (const float*)nodes;
-    const int* C = (const int*)kids;
-    const float* TR = (const float*)tris;
-    const float ox = o[0], oy = o[1], oz = o[2], dx = d[0], dy = d[1], dz = d[2];
-    const float ix = 1.0f / (dx == 0.0f ? 1e-20f : dx), iy = 1.0f / (dy == 0.0f ? 1e-20f : dy),
-                iz = 1.0f / (dz == 0.0f ? 1e-20f : dz);
+@RAY@
     auto fminf = [](float a, float b) { return a < b ? a : b; };
     auto fmaxf = [](float a, float b) { return a > b ? a : b; };
     int sn[80];

@@ -82,6 +82,27 @@ def lobe(u: wp.vec2, axis: wp.vec3, exponent: float) -> wp.vec3:
     return frame_from_z(axis, square_to_cos_power(u, exponent))
 
 
+@wp.struct
+class Facing:
+    ng: wp.vec3
+    n: wp.vec3
+
+
+@wp.func(inline=True)
+def toward_viewer(ng_in: wp.vec3, ns_in: wp.vec3, d: wp.vec3) -> Facing:
+    """A hit's geometric and shading normals turned towards the viewer of a ray along d; a shading
+    normal that still faces away falls back to the geometric one."""
+    f = Facing()
+    f.ng = ng_in
+    f.n = ns_in
+    if not (wp.dot(d, ng_in) < 0.0):
+        f.ng = -ng_in
+        f.n = -ns_in
+    if wp.dot(f.n, d) > 0.0:
+        f.n = f.ng  # a shading normal facing away from the viewer: fall back
+    return f
+
+
 @build_once
 def kernels_for(F: Features) -> SimpleNamespace:
     """The render kernel for a feature set (built once per process; ``kernels_for.built()`` lists
@@ -217,6 +238,8 @@ def kernels_for(F: Features) -> SimpleNamespace:
             if lanes == 0:
                 break
             packed = False
+            keys = PacketU()
+            idx = PacketI()
             pk = CameraPacket()
             mp = MeshPacket()
             mesh_packed = False
@@ -228,6 +251,18 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 # with Sobol points, a packet's camera samples drawn together (sampling.sobol_packet;
                 # lanes that go alone draw theirs alone)
                 sobol = packed and params.sampler == SAMPLER_SOBOL
+                # each lane's pixel key and sample index, for the Sobol points and the packet's shading
+                lane_keys = sobol
+                if wp.static(shade_packets):
+                    lane_keys = packed and scene.n_alights > 0
+                if lane_keys:
+                    if mixed:
+                        keys = lane_key
+                        idx = lane_s
+                    else:
+                        for k in range(lanes):
+                            keys[k] = p_key
+                            idx[k] = one_s + k
                 ufx = PacketF()
                 ufy = PacketF()
                 utx = PacketF()
@@ -235,14 +270,6 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 ulx = PacketF()
                 uly = PacketF()
                 if sobol:
-                    keys = PacketU()
-                    idx = PacketI()
-                    for k in range(lanes):
-                        keys[k] = p_key
-                        idx[k] = one_s + k
-                        if mixed:
-                            keys[k] = lane_key[k]
-                            idx[k] = lane_s[k]
                     sobol_packet(keys, idx, wp.uint32(DIM_FILM), ufx, ufy)
                     if wp.static(F.motion):
                         if params.moving != 0 and cam.t_close > cam.t_open:
@@ -296,12 +323,10 @@ def kernels_for(F: Features) -> SimpleNamespace:
             if wp.static(shade_packets):
                 shaded = packed and scene.n_alights > 0
                 if shaded:
+                    sp_.key = keys
+                    sp_.sample = idx
+                    sp_.time = pk.time
                     for k in range(lanes):
-                        kk = p_key
-                        sk = one_s + k
-                        if mixed:
-                            kk = lane_key[k]
-                            sk = lane_s[k]
                         o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
                         d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
                         h = Hit()
@@ -315,13 +340,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
                             L += mul_sat(wp.vec3(1.0, 1.0, 1.0), scene.background)
                         else:
                             front = wp.dot(d, h.ng) < 0.0
-                            ng = h.ng
-                            n = h.ns
-                            if not front:
-                                ng = -ng
-                                n = -n
-                            if wp.dot(n, d) > 0.0:
-                                n = ng
+                            fc = toward_viewer(h.ng, h.ns, d)
+                            ng = fc.ng
+                            n = fc.n
                             le = scene.mats[h.mat].emit
                             if wp.max(le) > 0.0:
                                 if front:
@@ -358,9 +379,6 @@ def kernels_for(F: Features) -> SimpleNamespace:
                                 sp_.ksg[k] = ks[1]
                                 sp_.ksb[k] = ks[2]
                                 sp_.p_exp[k] = scene.mats[h.mat].p
-                                sp_.time[k] = pk.time[k]
-                                sp_.key[k] = kk
-                                sp_.sample[k] = sk
                         lr[k] = L[0]
                         lg[k] = L[1]
                         lb[k] = L[2]
@@ -467,13 +485,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
                             L += mul_sat(e.w, scene.background)
                             continue
                         front = wp.dot(e.d, h.ng) < 0.0
-                        ng = h.ng
-                        n = h.ns
-                        if not front:
-                            ng = -ng
-                            n = -n
-                        if wp.dot(n, e.d) > 0.0:
-                            n = ng  # a shading normal facing away from the viewer: fall back
+                        fc = toward_viewer(h.ng, h.ns, e.d)
+                        ng = fc.ng
+                        n = fc.n
                         le = scene.mats[h.mat].emit
                         if wp.max(le) > 0.0:
                             if front:
