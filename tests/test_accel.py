@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import warp as wp
 
 import warprt
 from warprt import accel
@@ -313,3 +314,199 @@ def test_mesh_shadow_rays_stop_at_the_first_occluder_with_the_nearest_hit_loops_
         blocked_somewhere += int(got.sum())
         assert 0 < got.mean() < 1, f"{name}: every answer the same ({got.mean():.2f})"
     assert blocked_somewhere > 1000
+
+
+def _lane_by_lane(native, src):
+    """A packet function's CUDA branch (its lanes one by one), compiled for the CPU."""
+    import warp as wp
+
+    return wp.func_native(src.replace("#if defined(__clang__) && !defined(__CUDA_ARCH__)", "#if 0"))(native.func)
+
+
+def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
+    """The shadow tests and set-ups a packet runs for its 8 lanes at once (``geometry``:
+    ``sphere_hits_packet``, ``plane_hits_packet``, ``rect_hits_packet``, ``box_hits_packet``,
+    ``shadow_rays_packet``; ``lights.point_light_packet``), as clang vectors and lane by lane (their
+    CUDA branch, compiled here on the CPU), answer each lane exactly as the scalar functions do
+    (``sphere_roots``, ``intersect_plane``, ``intersect_rect``, ``ray_box``, ``shadow`` and
+    ``point_lights_direct``'s arithmetic): random rays aimed at the shapes, lengths ending near
+    the hits, axis-aligned directions, origins on the surfaces, moving spheres, points behind
+    their normals and lights on the surface."""
+    import warp as wp
+
+    from warprt import geometry as g
+    from warprt import lights as lt
+    from warprt.shading import FLT_MAX  # noqa: F401  (the module the kernels' functions live in)
+
+    rng = np.random.default_rng(9)
+    n = 4096
+    c0 = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    dc = np.where(rng.random((n, 1)) < 0.5, rng.normal(0, 0.3, (n, 3)), 0.0).astype(np.float32)
+    r = rng.uniform(0.05, 0.8, n).astype(np.float32)
+    o = rng.uniform(-3, 3, (n, 8, 3)).astype(np.float32)
+    aim = c0[:, None] + rng.normal(0, 0.6, (n, 8, 3))
+    d = np.where(rng.random((n, 8, 1)) < 0.8, aim - o, rng.normal(size=(n, 8, 3)))
+    axis = rng.random((n, 8)) < 0.08
+    d[axis] = np.eye(3)[rng.integers(0, 3, axis.sum())] * rng.choice([-1, 1], (axis.sum(), 1))
+    d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    dist = np.linalg.norm(c0[:, None] - o, axis=-1)
+    t_max = (dist * rng.uniform(0.3, 1.7, (n, 8))).astype(np.float32)
+    time = rng.random((n, 8)).astype(np.float32)
+    e1 = rng.normal(0, 0.7, (n, 3)).astype(np.float32)
+    e2 = rng.normal(0, 0.7, (n, 3)).astype(np.float32)
+    lo = (c0 - rng.uniform(0.05, 1, (n, 3))).astype(np.float32)
+    hi = (c0 + rng.uniform(0.05, 1, (n, 3))).astype(np.float32)
+    nrm = rng.normal(size=(n, 3))
+    nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
+    on = rng.random((n, 8)) < 0.1  # origins on the plane through c0
+    o[on] = (o[on] - np.einsum("ij,ij->i", o[on] - np.repeat(c0[:, None], 8, 1)[on],
+                               np.repeat(nrm[:, None], 8, 1)[on])[:, None] * np.repeat(nrm[:, None], 8, 1)[on])
+    # shading points with normals (g, n), viewer directions and lights (some on the point)
+    gn = rng.normal(size=(n, 8, 3))
+    gn = (gn / np.linalg.norm(gn, axis=-1, keepdims=True)).astype(np.float32)
+    sn = gn + rng.normal(0, 0.2, (n, 8, 3))
+    sn = (sn / np.linalg.norm(sn, axis=-1, keepdims=True)).astype(np.float32)
+    vv = rng.normal(size=(n, 8, 3))
+    vv = (vv / np.linalg.norm(vv, axis=-1, keepdims=True)).astype(np.float32)
+    pos = np.where(rng.random((n, 1)) < 0.05, o[:, 0], rng.uniform(-3, 3, (n, 3))).astype(np.float32)
+    stop = rng.uniform(0, 0.3, n).astype(np.float32)
+    directional = (rng.random(n) < 0.2).astype(np.int32)
+    lanes = rng.integers(1, 256, n).astype(np.int32)
+
+    P = accel.PacketF
+
+    def kernel_for(sph, pln, rct, box, shd, pl):
+        @wp.func
+        def pk(a: wp.array(dtype=wp.vec3, ndim=2), i: int, c: int) -> accel.PacketF:
+            v = accel.PacketF()
+            for k in range(accel.PACKET):
+                v[k] = a[i, k][c]
+            return v
+
+        @wp.func
+        def pkf(a: wp.array(dtype=float, ndim=2), i: int) -> accel.PacketF:
+            v = accel.PacketF()
+            for k in range(accel.PACKET):
+                v[k] = a[i, k]
+            return v
+
+        @wp.kernel(enable_backward=False, module="unique")
+        def k(o: wp.array(dtype=wp.vec3, ndim=2), d: wp.array(dtype=wp.vec3, ndim=2),
+              tm: wp.array(dtype=float, ndim=2), tt: wp.array(dtype=float, ndim=2), c0: wp.array(dtype=wp.vec3),
+              dc: wp.array(dtype=wp.vec3), r: wp.array(dtype=float), e1: wp.array(dtype=wp.vec3),
+              e2: wp.array(dtype=wp.vec3), nrm: wp.array(dtype=wp.vec3), lo: wp.array(dtype=wp.vec3),
+              hi: wp.array(dtype=wp.vec3), gn: wp.array(dtype=wp.vec3, ndim=2), sn: wp.array(dtype=wp.vec3, ndim=2),
+              vv: wp.array(dtype=wp.vec3, ndim=2), pos: wp.array(dtype=wp.vec3), stop: wp.array(dtype=float),
+              directional: wp.array(dtype=int), lanes: wp.array(dtype=int), out: wp.array(dtype=int, ndim=2)):
+            i = wp.tid()
+            ox, oy, oz = pk(o, i, 0), pk(o, i, 1), pk(o, i, 2)
+            dx, dy, dz = pk(d, i, 0), pk(d, i, 1), pk(d, i, 2)
+            t_max = pkf(tm, i)
+            time = pkf(tt, i)
+            m = lanes[i]
+            out[i, 0] = sph(c0[i], dc[i], 1, r[i], m, ox, oy, oz, dx, dy, dz, t_max, time)
+            out[i, 1] = pln(c0[i], nrm[i], m, ox, oy, oz, dx, dy, dz, t_max)
+            out[i, 2] = rct(c0[i], e1[i], e2[i], m, ox, oy, oz, dx, dy, dz, t_max)
+            out[i, 3] = box(lo[i], hi[i], m, ox, oy, oz, dx, dy, dz, t_max)
+            sx, sy, sz, st = accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF()
+            # shadow rays from o to the sphere's centre
+            yx = accel.PacketF(c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0])
+            yy = accel.PacketF(c0[i][1], c0[i][1], c0[i][1], c0[i][1], c0[i][1], c0[i][1], c0[i][1], c0[i][1])
+            yz = accel.PacketF(c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2])
+            out[i, 4] = shd(m, ox, oy, oz, yx, yy, yz, stop[i], sx, sy, sz, st)
+            # the point light at pos seen from p = o (its shadow rays from o + 0.01 g)
+            gx, gy, gz = pk(gn, i, 0), pk(gn, i, 1), pk(gn, i, 2)
+            nx, ny, nz = pk(sn, i, 0), pk(sn, i, 1), pk(sn, i, 2)
+            vx, vy, vz = pk(vv, i, 0), pk(vv, i, 1), pk(vv, i, 2)
+            qx, qy, qz = ox + gx * 0.01, oy + gy * 0.01, oz + gz * 0.01
+            ld, lnl, lhl, lnh, lx, ly, lz, lt_ = (accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF(),
+                                                 accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF())
+            out[i, 5] = pl(pos[i], directional[i], stop[i], m, ox, oy, oz, qx, qy, qz, gx, gy, gz, nx, ny, nz, vx, vy,
+                           vz, ld, lnl, lhl, lnh, lx, ly, lz, lt_)
+            # the scalar answers, lane by lane; bit 8 + k of out[i, 6..]: a value that differs
+            want = wp.vec4i(0, 0, 0, 0)
+            want2 = int(0)
+            want3 = int(0)
+            bad = int(0)
+            for k in range(accel.PACKET):
+                if (m >> k) & 1 == 0:
+                    continue
+                ok = wp.vec3(ox[k], oy[k], oz[k])
+                dk = wp.vec3(dx[k], dy[k], dz[k])
+                c = c0[i] + dc[i] * time[k]
+                roots = g.sphere_roots(ok, dk, c, r[i])
+                if (roots[0] > 0.0 and roots[0] < t_max[k]) or (roots[1] > 0.0 and roots[1] < t_max[k]):
+                    want[0] = want[0] | (1 << k)
+                if g.intersect_plane(ok, dk, c0[i], nrm[i], 0.0, t_max[k]) >= 0.0:
+                    want[1] = want[1] | (1 << k)
+                if g.intersect_rect(ok, dk, c0[i], e1[i], e2[i], 0.0, t_max[k]) >= 0.0:
+                    want[2] = want[2] | (1 << k)
+                if g.ray_box(ok, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), dk), lo[i], hi[i], 0.0, t_max[k]):
+                    want[3] = want[3] | (1 << k)
+                to_t = c0[i] - ok
+                dist = wp.length(to_t)
+                if not (dist <= stop[i]):
+                    want2 = want2 | (1 << k)
+                    s = to_t / dist
+                    if s[0] != sx[k] or s[1] != sy[k] or s[2] != sz[k] or dist - stop[i] != st[k]:
+                        bad = bad | (1 << k)
+                # point_lights_direct's tests and values
+                l = pos[i]
+                dl = float(0.0)
+                if directional[i] == 0:
+                    to_light = pos[i] - ok
+                    dl = wp.length(to_light)
+                    if dl <= 0.0:
+                        continue
+                    l = to_light / dl
+                g_k = wp.vec3(gx[k], gy[k], gz[k])
+                n_k = wp.vec3(nx[k], ny[k], nz[k])
+                if wp.dot(g_k, l) <= 0.0 or wp.dot(n_k, l) <= 0.0:
+                    continue
+                want3 = want3 | (1 << k)
+                h = l + wp.vec3(vx[k], vy[k], vz[k])
+                hl = wp.length(h)
+                if dl != ld[k] or wp.dot(n_k, l) != lnl[k] or hl != lhl[k] or wp.dot(n_k, h / hl) != lnh[k]:
+                    bad = bad | (1 << (8 + k))
+                q = wp.vec3(qx[k], qy[k], qz[k])
+                if directional[i] == 0:
+                    to_t2 = pos[i] - q
+                    dq = wp.length(to_t2)
+                    if not (dq <= stop[i]):
+                        want3 = want3 | (1 << (16 + k))
+                        s2 = to_t2 / dq
+                        if s2[0] != lx[k] or s2[1] != ly[k] or s2[2] != lz[k] or dq - stop[i] != lt_[k]:
+                            bad = bad | (1 << (16 + k))
+                else:
+                    want3 = want3 | (1 << (16 + k))
+                    if l[0] != lx[k] or l[1] != ly[k] or l[2] != lz[k] or lt_[k] != 3.0e38:
+                        bad = bad | (1 << (16 + k))
+            for j in range(4):
+                out[i, 6 + j] = want[j]
+            out[i, 10] = want2
+            out[i, 11] = want3
+            out[i, 12] = bad
+        return k
+
+    natives = [(g.sphere_hits_packet, g._SPHERE_HITS_PACKET), (g.plane_hits_packet, g._PLANE_HITS_PACKET),
+               (g.rect_hits_packet, g._RECT_HITS_PACKET), (g.box_hits_packet, g._BOX_HITS_PACKET),
+               (g.shadow_rays_packet, g._SHADOW_RAYS_PACKET), (lt.point_light_packet, lt._POINT_LIGHT_PACKET)]
+    arrays = dict(o=(o, wp.vec3), d=(d, wp.vec3), tm=(t_max, float), tt=(time, float), c0=(c0, wp.vec3),
+                  dc=(dc, wp.vec3), r=(r, float), e1=(e1, wp.vec3), e2=(e2, wp.vec3), nrm=(nrm, wp.vec3),
+                  lo=(lo, wp.vec3), hi=(hi, wp.vec3), gn=(gn, wp.vec3), sn=(sn, wp.vec3), vv=(vv, wp.vec3),
+                  pos=(pos, wp.vec3), stop=(stop, float), directional=(directional, int), lanes=(lanes, int))
+    inputs = [wp.array(a, dtype=t, device="cpu") for a, t in arrays.values()]
+    for variant in ("vectors", "lanes"):
+        fns = [f if variant == "vectors" else _lane_by_lane(f, src) for f, src in natives]
+        out = wp.zeros((n, 13), dtype=int, device="cpu")
+        wp.launch(kernel_for(*fns), dim=n, device="cpu", inputs=inputs + [out])
+        res = out.numpy()
+        for j, name in enumerate(("sphere", "plane", "rectangle", "box", "shadow rays", "point light")):
+            np.testing.assert_array_equal(res[:, j], res[:, 6 + j], err_msg=f"{variant}: {name}")
+        assert (res[:, 12] == 0).all(), variant
+        # the cases are there: hits and misses of every test, lanes cut by the stop, no light
+        hits = [np.unpackbits(res[:, 6 + j].astype(np.uint8)[:, None], axis=1).sum() for j in range(4)]
+        asked = np.unpackbits(lanes.astype(np.uint8)[:, None], axis=1).sum()
+        assert all(0.02 * asked < h < 0.9 * asked for h in hits), (hits, asked)
+        lit = np.unpackbits(res[:, 11].astype(np.uint8)[:, None], axis=1).sum()
+        assert 0.05 * asked < lit < 0.5 * asked

@@ -253,6 +253,68 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
         assert a_adaptive.tobytes() == b_adaptive.tobytes(), mode
         assert a.min() >= 0.0 and a.mean() > 0.05
 
+
+@pytest.mark.parametrize("sampler, bvh", [("sobol", True), ("sobol", False), ("stratified", True)])
+def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeypatch, sampler, bvh):
+    """Without secondary rays a packet's shading points also take the point and directional lights
+    together (``lights.point_lights_packet``: on the CPU each light's directions, n·l, n·h and
+    shadow rays for the 8 lanes as clang vectors), and their shadow rays go together
+    (``trace.occluded_packet``: spheres, planes, rectangles, the analytic BVH and the mesh
+    instances' boxes for all lanes at once, disks, solids and triangles lane by lane). Every
+    lane's light must be the one it gets alone, bit for bit, with and without the analytic BVH:
+    an inverse-square, an unattenuated (behind a wall: planes cast shadows too) and a directional
+    light, a light just above a surface (shadow rays shorter than the stop), Blinn-Phong lobes,
+    moving spheres (their centres at each lane's time), a posed mesh, a box, disks and rectangles
+    that cast shadows, full and part packets, packets over several pixels (adaptive counts)."""
+    from warprt.trace import PACKET
+
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),
+                       indexing="ij")
+    verts = np.stack([(0.5 + 0.2 * np.cos(v)) * np.cos(u), 0.2 * np.sin(v), (0.5 + 0.2 * np.cos(v)) * np.sin(u)],
+                     -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(16), np.arange(8), indexing="ij")
+    a, b = i * 8 + j, ((i + 1) % 16) * 8 + j
+    c, d = ((i + 1) % 16) * 8 + (j + 1) % 8, i * 8 + (j + 1) % 8
+    faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
+    from warprt.scene.transform import Transform
+
+    rng = np.random.default_rng(11)
+    shapes = (warprt.Plane(material="floor"), warprt.Plane(point=(-1.6, 0.0, 0.0), normal=(1.0, 0.0, 0.0), material="floor"),
+              warprt.Mesh(vertices=verts, faces=faces, material="ball",
+                          transform=Transform(translate=(0.9, 0.45, -0.3), rotate=(30, 0, 15))),
+              warprt.Box(center=(-0.9, 0.25, 0.4), size=(0.4, 0.5, 0.3), material="shiny"),
+              warprt.Disk(center=(0.2, 1.2, 0.8), normal=(0.2, 1.0, 0.1), radius=0.25, material="floor"),
+              warprt.Rectangle(corner=(-0.2, 0.9, -0.8), edge1=(0.6, 0.1, 0.0), edge2=(0.0, 0.05, 0.5),
+                               material="shiny"))
+    shapes += tuple(warprt.Sphere(center=tuple(q), radius=float(r), material="ball",
+                                  center_end=tuple(q + (0.25, 0.1, 0.0)) if k % 2 == 0 else None)
+                    for k, (q, r) in enumerate(zip(rng.uniform((-1.5, 0.1, -1.0), (1.5, 1.0, 1.0), (6, 3)),
+                                                   rng.uniform(0.08, 0.2, 6))))
+    lights = (warprt.PointLight(position=(1.0, 2.5, 2.0), intensity=4.0, falloff="inverse_square"),
+              warprt.PointLight(position=(-2.2, 1.8, -0.5), intensity=(0.3, 0.25, 0.2)),  # behind the wall
+              warprt.DirectionalLight(direction=(0.3, -1.0, -0.4), intensity=(0.3, 0.3, 0.35)),
+              warprt.PointLight(position=(0.0, 1e-7, 0.0), intensity=0.2))  # on the floor: no shadow ray
+    materials = {"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40),
+                 "shiny": warprt.Material(kd=0.3, ks=0.6, p=200)}
+    camera = warprt.Camera(eye=(0.3, 1.8, 3.2), look_at=(0.0, 0.3, 0.0), width=24, height=18, shutter=(0.0, 1.0))
+    scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(sampler=sampler)
+    if not bvh:
+        monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
+    ren = warprt.Renderer(scene, device=device)
+    assert ren.features.camera_packets and not ren.features.secondary and not ren.features.area_lights
+    assert (ren.built.analytic_bvh is not None) == bvh
+    spp = PACKET + 3  # a full packet and a part one per pixel
+    a = ren.render(spp=spp, seed=4, progress=False).image
+    a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
+    monkeypatch.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
+    alone = warprt.Renderer(scene, device=device)  # every camera sample alone: one a pass and thread
+    b = alone.render(spp=spp, seed=4, progress=False, pass_spp=1).image
+    b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
+    assert a.tobytes() == b.tobytes()
+    assert a_adaptive.tobytes() == b_adaptive.tobytes()
+    assert a.min() >= 0.0 and a.mean() > 0.05
+
+
 def test_long_rectangles_boxed_in_pieces_find_the_same_hits_and_shadows(device, monkeypatch):
     """Long thin opaque bars tilted off the axes go into the BVH as pieces
     (``shapes.rect_pieces``); a transparent bar stays whole, so its shadow counts one crossing.

@@ -78,6 +78,35 @@ PacketF = wp.types.vector(length=PACKET, dtype=wp.float32)
 PacketI = wp.types.vector(length=PACKET, dtype=wp.int32)
 PacketU = wp.types.vector(length=PACKET, dtype=wp.uint32)  # a packet's lanes' pixel keys
 
+
+# A lane of a packet read or added to in place. Warp reads ``v[k]`` (k not a constant) by copying
+# the whole vector first, and after a store to one of its lanes that copy waits for the store
+# (a store-to-load forwarding stall, about as long as a division, in every pass of a loop that
+# adds to its lanes); these read and write the lane alone.
+@wp.func_native("return v[k];")
+def lane(v: wp.ref[PacketF], k: int) -> float:
+    """v[k], read in place."""
+    ...
+
+
+@wp.func_native("return v[k];")
+def lane_i(v: wp.ref[PacketI], k: int) -> int:
+    """v[k], read in place."""
+    ...
+
+
+@wp.func_native("v[k] = v[k] + x;")
+def lane_add(v: wp.ref[PacketF], k: int, x: float):
+    """v[k] = v[k] + x, in place."""
+    ...
+
+
+@wp.func_native("v[k] = v[k] + x;")
+def lane_addi(v: wp.ref[PacketI], k: int, x: int):
+    """v[k] = v[k] + x, in place."""
+    ...
+
+
 # One node of the analytic BVH against a packet's 8 rays: per child, the least entry distance
 # over the lanes whose ray meets the child's box before that lane's nearest hit (``slab`` and the
 # scalar traversal's test, lane by lane, the same operations in the same order), PACKET_MISS

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from .accel import PacketF
+
 MISS = -1.0
 SPAWN_REL = 1.0 / 131072.0  # 2^-17
 SPAWN_ABS = 1.0e-30
@@ -119,6 +121,149 @@ def intersect_plane(o: wp.vec3, d: wp.vec3, p0: wp.vec3, n: wp.vec3, t_min: floa
     return MISS
 
 
+
+# The start of a packet's ray test on the CPU: its lanes' origins, directions and lengths loaded as
+# clang vectors (spliced into the snippets below; the compiled C++ is the same as written out).
+_PACKET_RAYS = r"""#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz, Dx, Dy, Dz, Tm;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+__builtin_memcpy(&Tm, &t_max, 32);"""
+
+
+# Shadow rays of a camera packet's 8 shading points met by one sphere or one plane at once, as
+# clang vectors on the CPU: ``sphere_roots`` and ``intersect_plane``'s operations in the same order
+# (Warp's CPU fmin / fmax for the roots' order; Warp's C++ compiler fuses nothing), so a lane is
+# blocked exactly when the scalar test says so. On CUDA the same operations lane by lane.
+_SPHERE_HITS_PACKET = r"""
+int res = 0;
+if (!(r <= 0.0f)) {
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz, Dx, Dy, Dz, Tm, Tt;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+__builtin_memcpy(&Tm, &t_max, 32); __builtin_memcpy(&Tt, &time, 32);
+auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
+auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
+v8 cx = (v8)(c0[0]), cy = (v8)(c0[1]), cz = (v8)(c0[2]);
+if (moving != 0) { cx = c0[0] + dc[0] * Tt; cy = c0[1] + dc[1] * Tt; cz = c0[2] + dc[2] * Tt; }
+const v8 fx = Ox - cx, fy = Oy - cy, fz = Oz - cz;
+const v8 b = -((fx * Dx + fy * Dy) + fz * Dz);
+const v8 lx = fx + b * Dx, ly = fy + b * Dy, lz = fz + b * Dz;
+const v8 disc = r * r - ((lx * lx + ly * ly) + lz * lz);
+const v8 sq = __builtin_elementwise_sqrt(disc);
+const v8 q = b + (b >= 0.0f ? sq : -sq);
+const v8 cc = ((fx * fx + fy * fy) + fz * fz) - r * r;
+const i8 zero_q = q == 0.0f;
+const v8 t0 = zero_q ? (v8)(0.0f) : cc / q, t1 = zero_q ? (v8)(0.0f) : q;
+const v8 lo = vmin(t0, t1), hi = vmax(t0, t1);
+const i8 hit = ~(disc < 0.0f) & (((lo > 0.0f) & (lo < Tm)) | ((hi > 0.0f) & (hi < Tm)));
+for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    float cx = c0[0], cy = c0[1], cz = c0[2];
+    if (moving != 0) { cx = c0[0] + dc[0] * time[l]; cy = c0[1] + dc[1] * time[l]; cz = c0[2] + dc[2] * time[l]; }
+    const float fx = ox[l] - cx, fy = oy[l] - cy, fz = oz[l] - cz;
+    const float b = -((fx * dx[l] + fy * dy[l]) + fz * dz[l]);
+    const float lx = fx + b * dx[l], ly = fy + b * dy[l], lz = fz + b * dz[l];
+    const float disc = r * r - ((lx * lx + ly * ly) + lz * lz);
+    if (disc < 0.0f) continue;
+    const float q = b + (b >= 0.0f ? sqrtf(disc) : -sqrtf(disc));
+    if (q == 0.0f) continue;
+    const float t0 = (((fx * fx + fy * fy) + fz * fz) - r * r) / q, t1 = q;
+    const float lo = wp::min(t0, t1), hi = wp::max(t0, t1);
+    if ((lo > 0.0f && lo < t_max[l]) || (hi > 0.0f && hi < t_max[l])) res |= 1 << l;
+}
+#endif
+}
+return res;
+"""
+
+
+@wp.func_native(_SPHERE_HITS_PACKET)
+def sphere_hits_packet(c0: wp.vec3, dc: wp.vec3, moving: int, r: float, lanes: int, ox: PacketF, oy: PacketF,
+                       oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF) -> int:
+    """The lanes (of the bit mask ``lanes``) whose ray (o, d) meets the sphere of radius r, centre
+    c0 (+ dc·time when ``moving``), in (0, t_max): where ``sphere_roots`` has a root there."""
+    ...
+
+
+_PLANE_HITS_PACKET = r"""
+int res = 0;
+@PACKET_RAYS@
+const v8 denom = (n[0] * Dx + n[1] * Dy) + n[2] * Dz;
+const v8 t = ((n[0] * (p0[0] - Ox) + n[1] * (p0[1] - Oy)) + n[2] * (p0[2] - Oz)) / denom;
+const i8 hit = (denom != 0.0f) & (t > 0.0f) & (t < Tm);
+for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    const float denom = (n[0] * dx[l] + n[1] * dy[l]) + n[2] * dz[l];
+    if (denom == 0.0f) continue;
+    const float t = ((n[0] * (p0[0] - ox[l]) + n[1] * (p0[1] - oy[l])) + n[2] * (p0[2] - oz[l])) / denom;
+    if (t > 0.0f && t < t_max[l]) res |= 1 << l;
+}
+#endif
+return res;
+""".replace("@PACKET_RAYS@", _PACKET_RAYS)
+
+
+@wp.func_native(_PLANE_HITS_PACKET)
+def plane_hits_packet(p0: wp.vec3, n: wp.vec3, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
+                      dy: PacketF, dz: PacketF, t_max: PacketF) -> int:
+    """The lanes (of the bit mask ``lanes``) whose ray (o, d) meets the plane through p0 of normal n
+    in (0, t_max), as ``intersect_plane(o, d, p0, n, 0, t_max) >= 0`` says."""
+    ...
+
+
+_RECT_HITS_PACKET = r"""
+int res = 0;
+// intersect_rect's uniform parts: n = cross(e1, e2) and n·n
+const float n0 = e1[1] * e2[2] - e1[2] * e2[1], n1 = e1[2] * e2[0] - e1[0] * e2[2], n2 = e1[0] * e2[1] - e1[1] * e2[0];
+const float nn = (n0 * n0 + n1 * n1) + n2 * n2;
+@PACKET_RAYS@
+const v8 denom = (n0 * Dx + n1 * Dy) + n2 * Dz;
+const v8 t = ((n0 * (c[0] - Ox) + n1 * (c[1] - Oy)) + n2 * (c[2] - Oz)) / denom;
+i8 hit = (denom != 0.0f) & (t > 0.0f) & (t < Tm);
+const v8 rx = (Ox + t * Dx) - c[0], ry = (Oy + t * Dy) - c[1], rz = (Oz + t * Dz) - c[2];
+// cross(rel, e2) and cross(e1, rel), each dotted with n, over n·n
+const v8 ax = ry * e2[2] - rz * e2[1], ay = rz * e2[0] - rx * e2[2], az = rx * e2[1] - ry * e2[0];
+const v8 a = ((ax * n0 + ay * n1) + az * n2) / nn;
+const v8 bx = e1[1] * rz - e1[2] * ry, by = e1[2] * rx - e1[0] * rz, bz = e1[0] * ry - e1[1] * rx;
+const v8 b = ((bx * n0 + by * n1) + bz * n2) / nn;
+hit &= (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    const float denom = (n0 * dx[l] + n1 * dy[l]) + n2 * dz[l];
+    if (denom == 0.0f) continue;
+    const float t = ((n0 * (c[0] - ox[l]) + n1 * (c[1] - oy[l])) + n2 * (c[2] - oz[l])) / denom;
+    if (!(t > 0.0f && t < t_max[l])) continue;
+    const float rx = (ox[l] + t * dx[l]) - c[0], ry = (oy[l] + t * dy[l]) - c[1], rz = (oz[l] + t * dz[l]) - c[2];
+    const float ax = ry * e2[2] - rz * e2[1], ay = rz * e2[0] - rx * e2[2], az = rx * e2[1] - ry * e2[0];
+    const float a = ((ax * n0 + ay * n1) + az * n2) / nn;
+    const float bx = e1[1] * rz - e1[2] * ry, by = e1[2] * rx - e1[0] * rz, bz = e1[0] * ry - e1[1] * rx;
+    const float b = ((bx * n0 + by * n1) + bz * n2) / nn;
+    if (a >= 0.0f && a <= 1.0f && b >= 0.0f && b <= 1.0f) res |= 1 << l;
+}
+#endif
+return res;
+""".replace("@PACKET_RAYS@", _PACKET_RAYS)
+
+
+@wp.func_native(_RECT_HITS_PACKET)
+def rect_hits_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF,
+                     dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF) -> int:
+    """The lanes (of the bit mask ``lanes``) whose ray (o, d) meets the parallelogram c + a e1 + b e2
+    in (0, t_max), as ``intersect_rect(o, d, c, e1, e2, 0, t_max) >= 0`` says."""
+    ...
+
 @wp.func
 def intersect_rect(o: wp.vec3, d: wp.vec3, corner: wp.vec3, e1: wp.vec3, e2: wp.vec3,
                    t_min: float, t_max: float) -> float:
@@ -177,6 +322,84 @@ def ray_box(o: wp.vec3, inv_d: wp.vec3, lo: wp.vec3, hi: wp.vec3, t_min: float, 
     near = wp.max(wp.max(tn[0], tn[1]), wp.max(tn[2], t_min))
     far = wp.min(wp.min(tf[0], tf[1]), wp.min(tf[2], t_max))
     return near <= far * 1.0000004
+
+
+# A packet's rays against one box at once, as clang vectors on the CPU: ``ray_box`` with
+# inv_d = 1/d and t_min = 0, the same operations in the same order (Warp's CPU fmin / fmax), so a
+# lane passes exactly when the scalar test passes. On CUDA the same operations lane by lane.
+_BOX_HITS_PACKET = r"""
+int res = 0;
+@PACKET_RAYS@
+auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
+auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
+const v8 ix = 1.0f / Dx, iy = 1.0f / Dy, iz = 1.0f / Dz;
+const v8 ax = (lo[0] - Ox) * ix, ay = (lo[1] - Oy) * iy, az = (lo[2] - Oz) * iz;
+const v8 bx = (hi[0] - Ox) * ix, by = (hi[1] - Oy) * iy, bz = (hi[2] - Oz) * iz;
+const v8 near = vmax(vmax(vmin(ax, bx), vmin(ay, by)), vmax(vmin(az, bz), (v8)(0.0f)));
+const v8 far = vmin(vmin(vmax(ax, bx), vmax(ay, by)), vmin(vmax(az, bz), Tm));
+const i8 hit = near <= far * 1.0000004f;
+for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    const float ix = 1.0f / dx[l], iy = 1.0f / dy[l], iz = 1.0f / dz[l];
+    const float ax = (lo[0] - ox[l]) * ix, ay = (lo[1] - oy[l]) * iy, az = (lo[2] - oz[l]) * iz;
+    const float bx = (hi[0] - ox[l]) * ix, by = (hi[1] - oy[l]) * iy, bz = (hi[2] - oz[l]) * iz;
+    const float near = wp::max(wp::max(wp::min(ax, bx), wp::min(ay, by)), wp::max(wp::min(az, bz), 0.0f));
+    const float far = wp::min(wp::min(wp::max(ax, bx), wp::max(ay, by)), wp::min(wp::max(az, bz), t_max[l]));
+    if (near <= far * 1.0000004f) res |= 1 << l;
+}
+#endif
+return res;
+""".replace("@PACKET_RAYS@", _PACKET_RAYS)
+
+
+@wp.func_native(_BOX_HITS_PACKET)
+def box_hits_packet(lo: wp.vec3, hi: wp.vec3, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
+                    dy: PacketF, dz: PacketF, t_max: PacketF) -> int:
+    """The lanes (of the bit mask ``lanes``) whose ray (o, d) meets the box [lo, hi] in [0, t_max],
+    as ``ray_box(o, 1/d, lo, hi, 0, t_max)`` says."""
+    ...
+
+
+# A packet's shadow rays from origins o to targets y, as ``shadow`` sets them up: the unit
+# direction and the length (|y - o| - stop) of each lane in ``lanes`` whose target is farther
+# than ``stop`` (its bit in the result; a nearer target is lit without a test).
+_SHADOW_RAYS_PACKET = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz, Yx, Yy, Yz;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Yx, &yx, 32); __builtin_memcpy(&Yy, &yy, 32); __builtin_memcpy(&Yz, &yz, 32);
+const v8 tx = Yx - Ox, ty = Yy - Oy, tz = Yz - Oz;
+const v8 dist = __builtin_elementwise_sqrt((tx * tx + ty * ty) + tz * tz);
+const i8 test = ~(dist <= stop);
+const v8 sx = tx / dist, sy = ty / dist, sz = tz / dist, st = dist - stop;
+__builtin_memcpy(&out_dx, &sx, 32); __builtin_memcpy(&out_dy, &sy, 32); __builtin_memcpy(&out_dz, &sz, 32);
+__builtin_memcpy(&out_t, &st, 32);
+for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && test[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    const float tx = yx[l] - ox[l], ty = yy[l] - oy[l], tz = yz[l] - oz[l];
+    const float dist = sqrtf((tx * tx + ty * ty) + tz * tz);
+    if (dist <= stop) continue;
+    out_dx[l] = tx / dist; out_dy[l] = ty / dist; out_dz[l] = tz / dist; out_t[l] = dist - stop;
+    res |= 1 << l;
+}
+#endif
+return res;
+"""
+
+
+@wp.func_native(_SHADOW_RAYS_PACKET)
+def shadow_rays_packet(lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, yx: PacketF, yy: PacketF, yz: PacketF,
+                       stop: float, out_dx: wp.ref[PacketF], out_dy: wp.ref[PacketF], out_dz: wp.ref[PacketF],
+                       out_t: wp.ref[PacketF]) -> int:
+    """See above."""
+    ...
 
 
 # --- the posed solids (boxes, capsules, cylinders), in their own frame ----------------------------

@@ -118,9 +118,10 @@ def kernels_for(F: Features) -> SimpleNamespace:
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
     area_lights_packet = lights.area_lights_packet
-    # a packet's shading points drawn their area lights' samples together (lights.area_lights_packet):
-    # with camera packets, area lights and no secondary rays (the camera ray is the only path vertex)
-    shade_packets = packets and F.area_lights and not F.secondary
+    point_lights_packet = lights.point_lights_packet
+    # a packet's shading points lit together (lights.point_lights_packet, lights.area_lights_packet):
+    # with camera packets and no secondary rays (the camera ray is the only path vertex)
+    shade_packets = packets and not F.secondary
 
     @wp.func(inline=True)
     def camera_from(cam: CameraData, params: RenderParams, uf: wp.vec2, ut: float, ul_in: wp.vec2, px: int,
@@ -254,7 +255,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 # each lane's pixel key and sample index, for the Sobol points and the packet's shading
                 lane_keys = sobol
                 if wp.static(shade_packets):
-                    lane_keys = packed and scene.n_alights > 0
+                    lane_keys = sobol or (packed and scene.n_alights > 0)
                 if lane_keys:
                     if mixed:
                         keys = lane_key
@@ -321,7 +322,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
             lb = PacketF()
             l_rays = PacketI()
             if wp.static(shade_packets):
-                shaded = packed and scene.n_alights > 0
+                shaded = packed
                 if shaded:
                     sp_.key = keys
                     sp_.sample = idx
@@ -351,9 +352,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                                 v = -d
                                 local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
                                 origin = spawn_origin(h.p, ng, h.mag, 1.0)
-                                dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, pk.time[k])
-                                l_rays[k] += int(dl[3])
-                                L = local + wp.vec3(dl[0], dl[1], dl[2])  # the local light so far
+                                L = local  # the local light so far (the lights are added below)
                                 lit = lit | (1 << k)
                                 sp_.px[k] = h.p[0]
                                 sp_.py[k] = h.p[1]
@@ -383,7 +382,18 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         lg[k] = L[1]
                         lb[k] = L[2]
                     if lit != 0:
-                        lp = area_lights_packet(scene, params, sp_, lanes, lit)
+                        # the point lights for all lanes at once (local + their sum, as alone)
+                        if scene.n_plights > 0:
+                            pl = point_lights_packet(scene, sp_, lanes, lit)
+                            for k in range(PACKET):
+                                if (lit >> k) & 1 != 0:
+                                    lr[k] = lr[k] + pl.r[k]
+                                    lg[k] = lg[k] + pl.g[k]
+                                    lb[k] = lb[k] + pl.b[k]
+                                    l_rays[k] += pl.rays[k]
+                        if wp.static(F.area_lights):
+                            if scene.n_alights > 0:
+                                lp = area_lights_packet(scene, params, sp_, lanes, lit)
             # the packet's lanes pixel by pixel: a pixel's sums are fetched before its lanes and
             # stored after them, never inside the loop over its samples (stores there kept the
             # compiler from hoisting the scene's loads out of it: 4-10% of a sample)

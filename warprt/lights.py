@@ -15,11 +15,11 @@ from types import SimpleNamespace
 import warp as wp
 
 from ._warp import build_once
-from .accel import PACKET, PacketF, PacketI, PacketU
-from .geometry import max_abs, spawn_offset
+from .accel import PACKET, PacketF, PacketI, PacketU, lane, lane_add, lane_addi
+from .geometry import max_abs, shadow_rays_packet, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, SceneData
 from .sampling import SAMPLER_SOBOL, hash2, is_rectangle_edges, sample_2d_keyed, sobol_packet
-from .shading import blinn_phong, mul_sat
+from .shading import blinn_phong, mul_sat, phong_power
 from .shapes import prepare_emitter, rect_draw_packet, sample_emitter
 from .trace import make_trace
 
@@ -70,11 +70,106 @@ class LightPacket:
     rays: PacketI
 
 
+# A point (or directional) light seen from a camera packet's 8 shading points at once, as clang
+# vectors on the CPU: what ``point_lights_direct`` computes for each lane before the material's
+# colours (the direction and distance to the light, n·l, the half vector's length and n·h) and
+# its shadow ray, the same operations in the same order (Warp's C++ compiler fuses nothing), so
+# each lane's values are the scalar loop's bit for bit. On CUDA the same operations lane by lane.
+_POINT_LIGHT_PACKET = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Px, Py, Pz, Ox, Oy, Oz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy, Vz;
+__builtin_memcpy(&Px, &px, 32); __builtin_memcpy(&Py, &py, 32); __builtin_memcpy(&Pz, &pz, 32);
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Gx, &gx, 32); __builtin_memcpy(&Gy, &gy, 32); __builtin_memcpy(&Gz, &gz, 32);
+__builtin_memcpy(&Nx, &nx, 32); __builtin_memcpy(&Ny, &ny, 32); __builtin_memcpy(&Nz, &nz, 32);
+__builtin_memcpy(&Vx, &vx, 32); __builtin_memcpy(&Vy, &vy, 32); __builtin_memcpy(&Vz, &vz, 32);
+auto vsqrt = [](v8 x) -> v8 { return __builtin_elementwise_sqrt(x); };
+i8 ok;
+for (int l = 0; l < 8; ++l) ok[l] = (lanes >> l) & 1 ? -1 : 0;
+v8 lx = (v8)(pos[0]), ly = (v8)(pos[1]), lz = (v8)(pos[2]), dist = (v8)(0.0f);
+if (directional == 0) {
+    const v8 tx = pos[0] - Px, ty = pos[1] - Py, tz = pos[2] - Pz;
+    dist = vsqrt((tx * tx + ty * ty) + tz * tz);
+    ok &= ~(dist <= 0.0f);
+    lx = tx / dist; ly = ty / dist; lz = tz / dist;
+}
+ok &= ~(((Gx * lx + Gy * ly) + Gz * lz) <= 0.0f);
+const v8 nl = (Nx * lx + Ny * ly) + Nz * lz;
+ok &= ~(nl <= 0.0f);  // blinn_phong is 0 there
+const v8 hx = lx + Vx, hy = ly + Vy, hz = lz + Vz;
+const v8 hl = vsqrt((hx * hx + hy * hy) + hz * hz);
+const v8 ch = (Nx * (hx / hl) + Ny * (hy / hl)) + Nz * (hz / hl);
+v8 sx = lx, sy = ly, sz = lz, st = (v8)(3.0e38f);
+i8 test = ok;
+if (directional == 0) {
+    const v8 ux = pos[0] - Ox, uy = pos[1] - Oy, uz = pos[2] - Oz;
+    const v8 dn = vsqrt((ux * ux + uy * uy) + uz * uz);
+    test &= ~(dn <= stop);
+    sx = ux / dn; sy = uy / dn; sz = uz / dn;
+    st = dn - stop;
+}
+__builtin_memcpy(&out_dist, &dist, 32); __builtin_memcpy(&out_nl, &nl, 32);
+__builtin_memcpy(&out_hl, &hl, 32); __builtin_memcpy(&out_nh, &ch, 32);
+__builtin_memcpy(&out_dx, &sx, 32); __builtin_memcpy(&out_dy, &sy, 32); __builtin_memcpy(&out_dz, &sz, 32);
+__builtin_memcpy(&out_t, &st, 32);
+for (int l = 0; l < 8; ++l) res |= (ok[l] ? 1 << l : 0) | (test[l] ? 1 << (16 + l) : 0);
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    float lx = pos[0], ly = pos[1], lz = pos[2], dist = 0.0f;
+    if (directional == 0) {
+        const float tx = pos[0] - px[l], ty = pos[1] - py[l], tz = pos[2] - pz[l];
+        dist = sqrtf((tx * tx + ty * ty) + tz * tz);
+        if (dist <= 0.0f) continue;
+        lx = tx / dist; ly = ty / dist; lz = tz / dist;
+    }
+    if (((gx[l] * lx + gy[l] * ly) + gz[l] * lz) <= 0.0f) continue;
+    const float nl = (nx[l] * lx + ny[l] * ly) + nz[l] * lz;
+    if (nl <= 0.0f) continue;
+    const float hx = lx + vx[l], hy = ly + vy[l], hz = lz + vz[l];
+    const float hl = sqrtf((hx * hx + hy * hy) + hz * hz);
+    out_dist[l] = dist; out_nl[l] = nl; out_hl[l] = hl;
+    out_nh[l] = (nx[l] * (hx / hl) + ny[l] * (hy / hl)) + nz[l] * (hz / hl);
+    out_dx[l] = lx; out_dy[l] = ly; out_dz[l] = lz; out_t[l] = 3.0e38f;
+    res |= 1 << l;
+    if (directional == 0) {
+        const float ux = pos[0] - ox[l], uy = pos[1] - oy[l], uz = pos[2] - oz[l];
+        const float dn = sqrtf((ux * ux + uy * uy) + uz * uz);
+        if (dn <= stop) continue;
+        out_dx[l] = ux / dn; out_dy[l] = uy / dn; out_dz[l] = uz / dn; out_t[l] = dn - stop;
+    }
+    res |= 1 << (16 + l);
+}
+#endif
+return res;
+"""
+
+
+@wp.func_native(_POINT_LIGHT_PACKET)
+def point_light_packet(pos: wp.vec3, directional: int, stop: float, lanes: int, px: PacketF, py: PacketF,
+                       pz: PacketF, ox: PacketF, oy: PacketF, oz: PacketF, gx: PacketF, gy: PacketF, gz: PacketF,
+                       nx: PacketF, ny: PacketF, nz: PacketF, vx: PacketF, vy: PacketF, vz: PacketF,
+                       out_dist: wp.ref[PacketF], out_nl: wp.ref[PacketF], out_hl: wp.ref[PacketF],
+                       out_nh: wp.ref[PacketF], out_dx: wp.ref[PacketF], out_dy: wp.ref[PacketF],
+                       out_dz: wp.ref[PacketF], out_t: wp.ref[PacketF]) -> int:
+    """For each lane in the bit mask ``lanes`` (point p, shadow-ray origin o, normals g and n turned
+    towards the viewer, direction v to the viewer) and the light at ``pos`` (a unit vector towards
+    it when ``directional``; ``stop``: where the shadow ray ends short of it): the distance to the
+    light, n·l, |l + v|, n·(l + v)/|l + v| and the shadow ray's direction and length. Returns bit
+    l set where the light can reach lane l (in front of g and n), bit 16 + l where its shadow
+    ray is to be traced (``point_lights_direct``'s tests)."""
+    ...
+
+
 @build_once
 def make_lights(F: Features) -> SimpleNamespace:
     """The direct-lighting device functions for one feature set (built once per process)."""
     shadow = make_trace(F).shadow
     transmittance = make_trace(F).transmittance
+    occluded_packet = make_trace(F).occluded_packet
 
     @wp.func(inline=True)
     def one_area_light(scene: SceneData, params: RenderParams, j: int, pkey: wp.uint32, sample: int,
@@ -144,6 +239,13 @@ def make_lights(F: Features) -> SimpleNamespace:
         ar = PacketF()
         ag = PacketF()
         ab = PacketF()
+        fr = PacketF()
+        fg = PacketF()
+        fb = PacketF()
+        sx = PacketF()
+        sy = PacketF()
+        sz = PacketF()
+        st = PacketF()
         for j in range(scene.n_alights):
             ns = scene.alights[j].samples
             dim = hash2(wp.uint32(ROOT_KEY), wp.uint32(LIGHT_DIM_BASE + j))
@@ -177,6 +279,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                                          sp.px, sp.py, sp.pz, sp.nx, sp.ny, sp.nz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
                     scalar = m >> 8
                     drawn = live & ~scalar
+                    go = int(0)  # the lanes whose sample lights them if nothing is in the way
                     for k in range(lanes):
                         if (m >> k) & 1 == 0:
                             continue
@@ -189,21 +292,30 @@ def make_lights(F: Features) -> SimpleNamespace:
                                         sp.p_exp[k])
                         if wp.max(f) <= 0.0:
                             continue
-                        out.rays[k] += 1
-                        T = shadow(scene, wp.vec3(sp.ox[k], sp.oy[k], sp.oz[k]), wp.vec3(y0[k], y1[k], y2[k]), stop,
-                                   sp.time[k])
-                        if wp.max(T) <= 0.0:
+                        lane_addi(out.rays, k, 1)
+                        fr[k] = f[0]
+                        fg[k] = f[1]
+                        fb[k] = f[2]
+                        go = go | (1 << k)
+                    if go == 0:
+                        continue
+                    # the shadow rays of the lanes together (``shadow``'s set-up, then
+                    # ``occluded_packet``; without secondary rays nothing is transparent)
+                    test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
+                    lit = go & ~occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time)
+                    for k in range(lanes):
+                        if (lit >> k) & 1 == 0:
                             continue
-                        a = wp.vec3(ar[k], ag[k], ab[k]) + mul_sat(mul_sat(T, f), wp.vec3(ip[k] / wp.pi))
-                        ar[k] = a[0]
-                        ag[k] = a[1]
-                        ab[k] = a[2]
+                        a = mul_sat(mul_sat(wp.vec3(1.0, 1.0, 1.0), wp.vec3(fr[k], fg[k], fb[k])), wp.vec3(ip[k] / wp.pi))
+                        lane_add(ar, k, a[0])
+                        lane_add(ag, k, a[1])
+                        lane_add(ab, k, a[2])
                 for k in range(lanes):
                     if (drawn >> k) & 1 != 0:
-                        L = mul_sat(scene.alights[j].le, wp.vec3(ar[k], ag[k], ab[k])) / float(ns)
-                        out.r[k] = out.r[k] + L[0]
-                        out.g[k] = out.g[k] + L[1]
-                        out.b[k] = out.b[k] + L[2]
+                        L = mul_sat(scene.alights[j].le, wp.vec3(lane(ar, k), lane(ag, k), lane(ab, k))) / float(ns)
+                        lane_add(out.r, k, L[0])
+                        lane_add(out.g, k, L[1])
+                        lane_add(out.b, k, L[2])
             for k in range(lanes):
                 if (scalar >> k) & 1 != 0:
                     q = one_area_light(scene, params, j, sp.key[k], sp.sample[k], wp.uint32(ROOT_KEY),
@@ -211,10 +323,70 @@ def make_lights(F: Features) -> SimpleNamespace:
                                        wp.vec3(sp.gx[k], sp.gy[k], sp.gz[k]), wp.vec3(sp.nx[k], sp.ny[k], sp.nz[k]),
                                        wp.vec3(sp.vx[k], sp.vy[k], sp.vz[k]), wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]),
                                        wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k]), sp.p_exp[k], sp.time[k])
-                    out.r[k] = out.r[k] + q[0]
-                    out.g[k] = out.g[k] + q[1]
-                    out.b[k] = out.b[k] + q[2]
-                    out.rays[k] += int(q[3])
+                    lane_add(out.r, k, q[0])
+                    lane_add(out.g, k, q[1])
+                    lane_add(out.b, k, q[2])
+                    lane_addi(out.rays, k, int(q[3]))
+        return out
+
+    @wp.func
+    def point_lights_packet(scene: SceneData, sp: ShadePacket, lanes: int, live: int) -> LightPacket:
+        """``point_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes`` - 1
+        whose bit is set in ``live``), each lane's sum the same as alone, bit for bit: per light,
+        the geometry for all lanes at once (``point_light_packet``), each lane's colour, then the
+        lanes' shadow rays together (``occluded_packet``; a kernel without secondary rays has no
+        transparent materials)."""
+        out = LightPacket()
+        dist = PacketF()
+        nl = PacketF()
+        hl = PacketF()
+        nh = PacketF()
+        sx = PacketF()
+        sy = PacketF()
+        sz = PacketF()
+        st = PacketF()
+        fr = PacketF()
+        fg = PacketF()
+        fb = PacketF()
+        for i in range(scene.n_plights):
+            pos = scene.plights[i].pos
+            directional = int(0)
+            if scene.plights[i].inv_sq == FALLOFF_DIRECTIONAL:
+                directional = 1
+            m = point_light_packet(pos, directional, spawn_offset(max_abs(pos)), live, sp.px, sp.py, sp.pz, sp.ox,
+                                   sp.oy, sp.oz, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz, dist,
+                                   nl, hl, nh, sx, sy, sz, st)
+            go = int(0)
+            for k in range(PACKET):
+                if (m >> k) & 1 == 0:
+                    continue
+                # blinn_phong's colour from the lane's n·l and n·h
+                ks = wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k])
+                spec = float(0.0)
+                if hl[k] > 0.0 and wp.max(ks) > 0.0:
+                    spec = phong_power(nh[k], sp.p_exp[k])
+                f = wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]) * nl[k] + ks * spec
+                if wp.max(f) <= 0.0:
+                    continue
+                out.rays[k] += 1
+                fr[k] = f[0]
+                fg[k] = f[1]
+                fb[k] = f[2]
+                go = go | (1 << k)
+            if go == 0:
+                continue
+            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time)
+            lit = go & ~blocked
+            for k in range(PACKET):
+                if (lit >> k) & 1 == 0:
+                    continue
+                I = scene.plights[i].intensity
+                if scene.plights[i].inv_sq == 1:
+                    I = I / (dist[k] * dist[k])
+                L = mul_sat(wp.vec3(1.0, 1.0, 1.0), mul_sat(I, wp.vec3(fr[k], fg[k], fb[k])))
+                out.r[k] = out.r[k] + L[0]
+                out.g[k] = out.g[k] + L[1]
+                out.b[k] = out.b[k] + L[2]
         return out
 
     @wp.func(inline=True)
@@ -268,4 +440,4 @@ def make_lights(F: Features) -> SimpleNamespace:
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
     return SimpleNamespace(point_lights_direct=point_lights_direct, area_lights_direct=area_lights_direct,
-                           area_lights_packet=area_lights_packet)
+                           area_lights_packet=area_lights_packet, point_lights_packet=point_lights_packet)

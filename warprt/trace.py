@@ -21,14 +21,15 @@ from types import SimpleNamespace
 import warp as wp
 
 from .accel import (
-    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, mesh_tree_occluded, mesh_tree_packet, mesh_tree_ray,
-    packet_node, safe_inverse, slab,
+    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, lane, lane_i, mesh_tree_occluded, mesh_tree_packet,
+    mesh_tree_ray, packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
-    intersect_plane, intersect_rect, intersect_sphere, max_abs, quat_rotate_mag, ray_box, refine_on_plane,
-    refine_on_sphere, spawn_offset, sphere_roots,
+    intersect_plane, intersect_rect, intersect_sphere, max_abs, plane_hits_packet, quat_rotate_mag, ray_box,
+    box_hits_packet, rect_hits_packet, refine_on_plane, refine_on_sphere, spawn_offset, sphere_hits_packet,
+    sphere_roots,
 )
 from .records import (
     KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE,
@@ -732,10 +733,12 @@ def make_trace(F: Features) -> SimpleNamespace:
             ii = scene.bvh_prims[j][1]
             far_all = float(0.0)
             for k in range(lanes):
-                lane_best = pk.best[k]
-                kind = pk.kind[k]
+                # (the lane's entries read in place: a copy of the vectors would wait for the
+                # last lane's stores, accel.lane)
+                lane_best = lane(pk.best, k)
+                kind = lane_i(pk.kind, k)
                 # the tie rule of closest_hit's leaves
-                first = kind != KIND_NONE and (kk < kind or (kk == kind and ii < pk.index[k]))
+                first = kind != KIND_NONE and (kk < kind or (kk == kind and ii < lane_i(pk.index, k)))
                 t_hi = lane_best
                 if first:
                     t_hi = lane_best * 1.0000002 + 1.0e-38
@@ -745,7 +748,8 @@ def make_trace(F: Features) -> SimpleNamespace:
                     pk.best[k] = t
                     pk.kind[k] = kk
                     pk.index[k] = ii
-                far_all = wp.max(far_all, pk.best[k])
+                    lane_best = t
+                far_all = wp.max(far_all, lane_best)
         return pk
 
     @wp.func(inline=True)
@@ -1084,6 +1088,160 @@ def make_trace(F: Features) -> SimpleNamespace:
         return T
 
     @wp.func(inline=True)
+    def sphere_packet(scene: SceneData, i: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
+                      dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF) -> int:
+        """``sphere_hits_packet`` for sphere i (its centre at each lane's time)."""
+        c0 = scene.spheres[i].c0
+        if wp.static(F.motion):
+            return sphere_hits_packet(c0, scene.spheres[i].c1 - c0, 1, scene.spheres[i].r, lanes, ox, oy, oz, dx, dy,
+                                      dz, t_max, time)
+        return sphere_hits_packet(c0, c0, 0, scene.spheres[i].r, lanes, ox, oy, oz, dx, dy, dz, t_max, time)
+
+    @wp.func(inline=True)
+    def instance_occluded(scene: SceneData, i: int, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> bool:
+        """Whether a triangle of opaque instance i blocks the shadow ray (o, d) over (0, t_max) whose
+        box test passed (``mesh_transmittance``'s opaque branch)."""
+        pose = instance_pose(scene, i, time)
+        o_obj = to_object(pose, o)
+        d_obj = dir_to_object(pose, d)
+        occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids, scene.insts[i].tree_tris,
+                                 scene.insts[i].tree_root, o_obj, d_obj, t_max)
+        if occ < 0:
+            if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
+                occ = 1
+        return occ > 0
+
+    @wp.func
+    def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
+                        dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF) -> int:
+        """The lanes (of the bit mask ``lanes``, all below n) whose shadow ray (o, d) over (0, t_max)
+        a surface blocks, in a kernel without transparent materials, where ``transmittance`` is 0
+        or 1: the spheres (without the analytic BVH), planes and BVH for all lanes at once
+        (``sphere_hits_packet``, ``plane_hits_packet``, ``packet_node``, ``rect_hits_packet``),
+        the mesh instances' boxes for all lanes at once (``box_hits_packet``), then each lane in
+        a box through its triangles. A lane's answer is its own: the tests are the scalar ones,
+        and a node test looser than the scalar traversal's only adds leaves to test."""
+        blocked = int(0)
+        left = lanes
+        use_bvh = scene.bvh_root >= 0
+        if not use_bvh:
+            for i in range(scene.n_spheres):
+                if left == 0:
+                    return blocked
+                blocked = blocked | sphere_packet(scene, i, left, ox, oy, oz, dx, dy, dz, t_max, time)
+                left = lanes & ~blocked
+        for i in range(scene.n_planes):
+            if left == 0:
+                return blocked
+            blocked = blocked | plane_hits_packet(scene.planes[i].p, scene.planes[i].n, left, ox, oy, oz, dx, dy, dz,
+                                                  t_max)
+            left = lanes & ~blocked
+        if use_bvh and left != 0:
+            # the BVH for all lanes still lit together: a node opened while any of them meets a
+            # child's box (with a blocked lane's length below every entry)
+            inv_x = PacketF()
+            inv_y = PacketF()
+            inv_z = PacketF()
+            reach = PacketF()
+            for k in range(PACKET):
+                inv = safe_inverse(wp.vec3(dx[k], dy[k], dz[k]))
+                inv_x[k] = inv[0]
+                inv_y[k] = inv[1]
+                inv_z[k] = inv[2]
+                reach[k] = wp.where((left >> k) & 1 != 0, t_max[k], -PACKET_MISS)
+            refs = StackRefs()
+            refs[0] = scene.bvh_root
+            sp = int(1)
+            while sp > 0:
+                sp -= 1
+                ref = refs[sp]
+                if ref >= 0:
+                    ee = packet_node(scene.bvh_nodes, ref, ox, oy, oz, inv_x, inv_y, inv_z, reach)
+                    if ee[0] < PACKET_MISS:
+                        refs[sp] = scene.bvh_nodes[ref].c0
+                        sp += 1
+                    if ee[1] < PACKET_MISS:
+                        refs[sp] = scene.bvh_nodes[ref].c1
+                        sp += 1
+                    continue
+                j = -ref - 1
+                kk = scene.bvh_prims[j][0]
+                ii = scene.bvh_prims[j][1]
+                hit = int(0)
+                if kk == KIND_SPHERE:
+                    hit = sphere_packet(scene, ii, left, ox, oy, oz, dx, dy, dz, t_max, time)
+                elif kk == KIND_RECT:
+                    hit = rect_hits_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, left, ox, oy, oz,
+                                           dx, dy, dz, t_max)
+                else:
+                    for k in range(n):
+                        if (left >> k) & 1 != 0:
+                            o = wp.vec3(ox[k], oy[k], oz[k])
+                            d = wp.vec3(dx[k], dy[k], dz[k])
+                            if kk >= KIND_BOX:
+                                if wp.static(F.solids):
+                                    T = solid_crossings(scene, o, d, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d), t_max[k],
+                                                        time[k], kk, ii)
+                                    if wp.max(T) <= 0.0:
+                                        hit = hit | (1 << k)
+                            elif bounded_hit(scene, o, d, 0.0, t_max[k], time[k], kk, ii) >= 0.0:
+                                hit = hit | (1 << k)
+                if hit != 0:
+                    blocked = blocked | hit
+                    left = lanes & ~blocked
+                    if left == 0:
+                        return blocked
+                    for k in range(PACKET):
+                        reach[k] = wp.where((left >> k) & 1 != 0, reach[k], -PACKET_MISS)
+        if left == 0:
+            return blocked
+        if not use_bvh:
+            # without the BVH: the rectangles for all lanes at once, the disks and solids lane by lane
+            for i in range(scene.n_rects):
+                blocked = blocked | rect_hits_packet(scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, left, ox,
+                                                     oy, oz, dx, dy, dz, t_max)
+                left = lanes & ~blocked
+                if left == 0:
+                    return blocked
+            solids = False
+            if wp.static(F.solids):
+                solids = True
+            if scene.n_disks > 0 or solids:
+                for k in range(n):
+                    if (left >> k) & 1 != 0:
+                        o = wp.vec3(ox[k], oy[k], oz[k])
+                        d = wp.vec3(dx[k], dy[k], dz[k])
+                        for i in range(scene.n_disks):
+                            if intersect_disk(o, d, scene.disks[i].c, scene.disks[i].n, scene.disks[i].r, 0.0,
+                                              t_max[k]) >= 0.0:
+                                blocked = blocked | (1 << k)
+                        if wp.static(F.solids):
+                            inv_d = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d)
+                            for kk in range(KIND_BOX, KIND_CYLINDER + 1):
+                                for i in range(solid_count(scene, kk)):
+                                    T = solid_crossings(scene, o, d, inv_d, t_max[k], time[k], kk, i)
+                                    if wp.max(T) <= 0.0:
+                                        blocked = blocked | (1 << k)
+                left = lanes & ~blocked
+                if left == 0:
+                    return blocked
+        if wp.static(F.meshes):
+            # each instance's box for all lanes at once, then each lane in it through the triangles
+            for i in range(scene.n_inst):
+                inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left, ox, oy, oz, dx, dy, dz, t_max)
+                if inside == 0:
+                    continue
+                for k in range(n):
+                    if (inside >> k) & 1 != 0:
+                        if instance_occluded(scene, i, wp.vec3(ox[k], oy[k], oz[k]), wp.vec3(dx[k], dy[k], dz[k]),
+                                             t_max[k], time[k]):
+                            blocked = blocked | (1 << k)
+                left = lanes & ~blocked
+                if left == 0:
+                    return blocked
+        return blocked
+
+    @wp.func(inline=True)
     def shadow(scene: SceneData, origin: wp.vec3, target: wp.vec3, stop_short: float, time: float) -> wp.vec3:
         """Transmittance from ``origin`` to ``target``, ending ``stop_short`` before the target
         (so the light's own surface never occludes it)."""
@@ -1095,6 +1253,6 @@ def make_trace(F: Features) -> SimpleNamespace:
 
     return SimpleNamespace(closest_hit=closest_hit, trace_packet=trace_packet, finish_hit=finish_hit,
                            mesh_packet=mesh_packet, finish_packet_lane=finish_packet_lane,
-                           transmittance=transmittance, shadow=shadow,
+                           transmittance=transmittance, shadow=shadow, occluded_packet=occluded_packet,
                            sphere_center=sphere_center, instance_pose=instance_pose, solid_pose=solid_pose,
                            solid_rec=solid_rec)
