@@ -510,3 +510,138 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
         assert all(0.02 * asked < h < 0.9 * asked for h in hits), (hits, asked)
         lit = np.unpackbits(res[:, 11].astype(np.uint8)[:, None], axis=1).sum()
         assert 0.05 * asked < lit < 0.5 * asked
+
+
+def test_a_packets_bvh_leaf_updates_equal_the_lane_loop():
+    """A sphere, rectangle or plane against a camera packet's first n lanes (a leaf of the analytic
+    BVH, or the loops' shapes: ``geometry.sphere_leaf_packet``, ``rect_leaf_packet``,
+    ``plane_leaf_packet``), as clang vectors and lane by lane
+    (the CUDA branch, compiled here on the CPU), updates each lane's nearest hit, kind and row
+    and returns the farthest nearest hit exactly as ``trace_packet``'s loop over the lanes does
+    with ``intersect_sphere`` / ``intersect_rect`` / ``intersect_plane``: hits nearer and farther than each lane's
+    bound, exact ties that the tie rule gives to the lower kind or row (and not to a higher
+    one), lanes without a hit yet (kind -1), moving spheres, unused lanes past n."""
+    from warprt import geometry as g
+
+    rng = np.random.default_rng(13)
+    n = 4096
+    c = rng.uniform(-1, 1, (n, 3)).astype(np.float32)
+    dc = np.where(rng.random((n, 1)) < 0.5, rng.normal(0, 0.3, (n, 3)), 0.0).astype(np.float32)
+    r = rng.uniform(0.05, 0.8, n).astype(np.float32)
+    e1 = rng.normal(0, 0.8, (n, 3)).astype(np.float32)
+    e2 = rng.normal(0, 0.8, (n, 3)).astype(np.float32)
+    o = rng.uniform(-3, 3, (n, 8, 3)).astype(np.float32)
+    d = c[:, None] + rng.normal(0, 0.6, (n, 8, 3)) - o
+    d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+    time = rng.random((n, 8)).astype(np.float32)
+    dist = np.linalg.norm(c[:, None] - o, axis=-1)
+    best = np.repeat((dist * rng.uniform(0.5, 1.5, (n, 8))).astype(np.float32)[:, None], 3, 1)
+    kind = rng.choice([-1, 0, 1, 2, 3], (n, 3, 8)).astype(np.int32)
+    index = rng.integers(0, 6, (n, 3, 8)).astype(np.int32)
+    ii = rng.integers(0, 6, n).astype(np.int32)
+    nl = rng.integers(1, 9, n).astype(np.int32)
+    t_min = np.float32(1e-4)
+
+    def kernel_for(sph, rct, pln, exact):
+        @wp.kernel(enable_backward=False, module="unique")
+        def k(o: wp.array(dtype=wp.vec3, ndim=2), d: wp.array(dtype=wp.vec3, ndim=2),
+              tt: wp.array(dtype=float, ndim=2), c: wp.array(dtype=wp.vec3), dc: wp.array(dtype=wp.vec3),
+              r: wp.array(dtype=float), e1: wp.array(dtype=wp.vec3), e2: wp.array(dtype=wp.vec3),
+              best: wp.array(dtype=float, ndim=3), kind: wp.array(dtype=int, ndim=3),
+              index: wp.array(dtype=int, ndim=3), ii: wp.array(dtype=int), nl: wp.array(dtype=int), t_min: float,
+              out_t: wp.array(dtype=float, ndim=3), out_k: wp.array(dtype=int, ndim=3),
+              out_i: wp.array(dtype=int, ndim=3), far: wp.array(dtype=float, ndim=2)):
+            i = wp.tid()
+            ox, oy, oz = accel.PacketF(), accel.PacketF(), accel.PacketF()
+            dx, dy, dz = accel.PacketF(), accel.PacketF(), accel.PacketF()
+            tm = accel.PacketF()
+            for l in range(accel.PACKET):
+                ox[l] = o[i, l][0]
+                oy[l] = o[i, l][1]
+                oz[l] = o[i, l][2]
+                dx[l] = d[i, l][0]
+                dy[l] = d[i, l][1]
+                dz[l] = d[i, l][2]
+                tm[l] = tt[i, l]
+            for shape in range(3):
+                kk = 2 * shape - 3 * (shape // 2)  # KIND_SPHERE, KIND_RECT, KIND_PLANE
+                b = accel.PacketF()
+                kd = accel.PacketI()
+                ix = accel.PacketI()
+                for l in range(accel.PACKET):
+                    b[l] = best[i, shape, l]
+                    kd[l] = kind[i, shape, l]
+                    ix[l] = index[i, shape, l]
+                f = float(0.0)
+                if exact == 0:
+                    if shape == 0:
+                        f = sph(c[i], dc[i], 1, r[i], kk, ii[i], nl[i], t_min, ox, oy, oz, dx, dy, dz, tm, b, kd, ix)
+                    elif shape == 1:
+                        f = rct(c[i], e1[i], e2[i], kk, ii[i], nl[i], t_min, ox, oy, oz, dx, dy, dz, b, kd, ix)
+                    else:
+                        f = pln(c[i], wp.normalize(e1[i]), kk, ii[i], nl[i], t_min, ox, oy, oz, dx, dy, dz, b, kd, ix)
+                else:
+                    # trace_packet's loop over the lanes
+                    for l in range(nl[i]):
+                        lane_best = b[l]
+                        first = kd[l] != -1 and (kk < kd[l] or (kk == kd[l] and ii[i] < ix[l]))
+                        t_hi = lane_best
+                        if first:
+                            t_hi = lane_best * 1.0000002 + 1.0e-38
+                        ol = wp.vec3(ox[l], oy[l], oz[l])
+                        dl = wp.vec3(dx[l], dy[l], dz[l])
+                        t = float(-1.0)
+                        if shape == 0:
+                            t = g.intersect_sphere(ol, dl, c[i] + dc[i] * tm[l], r[i], t_min, t_hi)
+                        elif shape == 1:
+                            t = g.intersect_rect(ol, dl, c[i], e1[i], e2[i], t_min, t_hi)
+                        else:
+                            t = g.intersect_plane(ol, dl, c[i], wp.normalize(e1[i]), t_min, t_hi)
+                        if t >= 0.0 and (t < lane_best or (first and t == lane_best)):
+                            b[l] = t
+                            kd[l] = kk
+                            ix[l] = ii[i]
+                        f = wp.max(f, b[l])
+                for l in range(accel.PACKET):
+                    out_t[i, shape, l] = b[l]
+                    out_k[i, shape, l] = kd[l]
+                    out_i[i, shape, l] = ix[l]
+                far[i, shape] = f
+        return k
+
+    def run(best, kind, index):
+        arrays = [(o, wp.vec3), (d, wp.vec3), (time, float), (c, wp.vec3), (dc, wp.vec3), (r, float), (e1, wp.vec3),
+                  (e2, wp.vec3), (best, float), (kind, int), (index, int), (ii, int), (nl, int)]
+        results = {}
+        for name, (sph, rct, pln, exact) in {
+                "loop": (g.sphere_leaf_packet, g.rect_leaf_packet, g.plane_leaf_packet, 1),
+                "vectors": (g.sphere_leaf_packet, g.rect_leaf_packet, g.plane_leaf_packet, 0),
+                "lanes": (_lane_by_lane(g.sphere_leaf_packet, g._SPHERE_LEAF_PACKET),
+                          _lane_by_lane(g.rect_leaf_packet, g._RECT_LEAF_PACKET),
+                          _lane_by_lane(g.plane_leaf_packet, g._PLANE_LEAF_PACKET), 0)}.items():
+            outs = [wp.zeros((n, 3, 8), dtype=float, device="cpu"), wp.zeros((n, 3, 8), dtype=int, device="cpu"),
+                    wp.zeros((n, 3, 8), dtype=int, device="cpu"), wp.zeros((n, 3), dtype=float, device="cpu")]
+            wp.launch(kernels[name] if name in kernels else kernels.setdefault(name, kernel_for(sph, rct, pln, exact)),
+                      dim=n, device="cpu", inputs=[wp.array(a, dtype=t, device="cpu") for a, t in arrays] + [t_min] + outs)
+            results[name] = [x.numpy() for x in outs]
+        for name in ("vectors", "lanes"):
+            for got, want in zip(results[name], results["loop"]):
+                assert got.tobytes() == want.tobytes(), name
+        return results["loop"]
+
+    kernels = {}
+    used = np.arange(8)[None, None, :] < nl[:, None, None]
+    got = run(best, kind, index)
+    took = (got[1] != kind) & used
+    assert 0.1 < took.sum() / used.sum() < 0.6, took.sum() / used.sum()
+    # exact ties: each lane's bound set to the shape's own hit, held by a shape of the same kind
+    # whose row is one lower (the tie stays) or one higher (the tie rule hands it over)
+    alone = run(np.full_like(best, 1e30), np.full_like(kind, -1), index)
+    hit = (alone[1] >= 0) & used
+    lower = rng.random((n, 3, 8)) < 0.5
+    kind2 = np.where(hit, alone[1], kind)
+    index2 = np.where(hit, ii[:, None, None] + np.where(lower, -1, 1), index).astype(np.int32)
+    tied = run(np.where(hit, alone[0], best).astype(np.float32), kind2.astype(np.int32), index2)
+    handed = hit & (tied[2] == ii[:, None, None])
+    assert hit.sum() > 1000 and handed.sum() > 0.3 * hit.sum() and (hit & ~handed).sum() > 0.3 * hit.sum()
+    np.testing.assert_array_equal(handed, hit & ~lower)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .accel import PacketF
+from .accel import PacketF, PacketI
 
 MISS = -1.0
 SPAWN_REL = 1.0 / 131072.0  # 2^-17
@@ -132,6 +132,182 @@ __builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy
 __builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
 __builtin_memcpy(&Tm, &t_max, 32);"""
 
+
+
+# A leaf of the analytic BVH (a sphere or a rectangle, kind kk, row ii) against a camera packet's
+# first n lanes at once, as ``trace_packet``'s loop over its lanes does it: each lane's bound (its
+# nearest hit so far, widened by the tie rule where this shape would win a tie), the shape's hit
+# in (t_min, bound) as ``intersect_sphere`` / ``intersect_rect`` find it, and the lane's nearest
+# hit, kind and row replaced where the hit is nearer (or ties and wins). Returns the farthest
+# nearest hit over the lanes (from 0, in lane order, as the loop takes it).
+_LEAF_UPDATE = r"""
+i8 act;
+for (int l = 0; l < 8; ++l) act[l] = l < n ? -1 : 0;
+v8 B; i8 K, I;
+__builtin_memcpy(&B, &best, 32); __builtin_memcpy(&K, &kind, 32); __builtin_memcpy(&I, &index, 32);
+const i8 first = (K != -1) & ((kk < K) | ((kk == K) & (ii < I)));
+const v8 hi_t = first ? B * 1.0000002f + 1.0e-38f : B;
+"""
+_LEAF_STORE = r"""
+const i8 upd = act & (t >= 0.0f) & ((t < B) | (first & (t == B)));
+B = upd ? t : B; K = upd ? (i8)(kk) : K; I = upd ? (i8)(ii) : I;
+__builtin_memcpy(&best, &B, 32); __builtin_memcpy(&kind, &K, 32); __builtin_memcpy(&index, &I, 32);
+for (int l = 0; l < n; ++l) far = wp::max(far, B[l]);
+"""
+_LEAF_LANES = r"""
+for (int l = 0; l < n; ++l) {
+    const float b = best[l];
+    const int k = kind[l];
+    const bool first = k != -1 && (kk < k || (kk == k && ii < index[l]));
+    const float hi_t = first ? b * 1.0000002f + 1.0e-38f : b;
+    float t = -1.0f;
+    @LANE_HIT@
+    if (t >= 0.0f && (t < b || (first && t == b))) { best[l] = t; kind[l] = kk; index[l] = ii; }
+    far = wp::max(far, best[l]);
+}
+"""
+
+_SPHERE_LEAF_PACKET = (r"""
+float far = 0.0f;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz, Dx, Dy, Dz, Tt;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+__builtin_memcpy(&Tt, &time, 32);
+auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
+auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
+""" + _LEAF_UPDATE + r"""
+v8 cx = (v8)(c0[0]), cy = (v8)(c0[1]), cz = (v8)(c0[2]);
+if (moving != 0) { cx = c0[0] + dc[0] * Tt; cy = c0[1] + dc[1] * Tt; cz = c0[2] + dc[2] * Tt; }
+const v8 fx = Ox - cx, fy = Oy - cy, fz = Oz - cz;
+const v8 b = -((fx * Dx + fy * Dy) + fz * Dz);
+const v8 lx = fx + b * Dx, ly = fy + b * Dy, lz = fz + b * Dz;
+const v8 disc = r * r - ((lx * lx + ly * ly) + lz * lz);
+const v8 sq = __builtin_elementwise_sqrt(disc);
+const v8 q = b + (b >= 0.0f ? sq : -sq);
+const v8 cc = ((fx * fx + fy * fy) + fz * fz) - r * r;
+const i8 zero_q = q == 0.0f;
+const v8 t0 = zero_q ? (v8)(0.0f) : cc / q, t1 = zero_q ? (v8)(0.0f) : q;
+const i8 miss = (disc < 0.0f) | (i8)(r <= 0.0f ? -1 : 0);
+const v8 lo = miss ? (v8)(-1.0e38f) : vmin(t0, t1), hi = miss ? (v8)(-1.0e38f) : vmax(t0, t1);
+const v8 t = ((lo > t_min) & (lo < hi_t)) ? lo : (((hi > t_min) & (hi < hi_t)) ? hi : (v8)(-1.0f));
+""" + _LEAF_STORE + r"""
+#else
+""" + _LEAF_LANES.replace("@LANE_HIT@", r"""{
+        float cx = c0[0], cy = c0[1], cz = c0[2];
+        if (moving != 0) { cx = c0[0] + dc[0] * time[l]; cy = c0[1] + dc[1] * time[l]; cz = c0[2] + dc[2] * time[l]; }
+        const float fx = ox[l] - cx, fy = oy[l] - cy, fz = oz[l] - cz;
+        const float bb = -((fx * dx[l] + fy * dy[l]) + fz * dz[l]);
+        const float lx = fx + bb * dx[l], ly = fy + bb * dy[l], lz = fz + bb * dz[l];
+        const float disc = r * r - ((lx * lx + ly * ly) + lz * lz);
+        float lo = -1.0e38f, hi = -1.0e38f;
+        if (!(disc < 0.0f || r <= 0.0f)) {
+            const float q = bb + (bb >= 0.0f ? sqrtf(disc) : -sqrtf(disc));
+            const float cc = ((fx * fx + fy * fy) + fz * fz) - r * r;
+            const float t0 = q == 0.0f ? 0.0f : cc / q, t1 = q == 0.0f ? 0.0f : q;
+            lo = wp::min(t0, t1); hi = wp::max(t0, t1);
+        }
+        if (lo > t_min && lo < hi_t) t = lo;
+        else if (hi > t_min && hi < hi_t) t = hi;
+    }""") + r"""
+#endif
+return far;
+""")
+
+
+@wp.func_native(_SPHERE_LEAF_PACKET)
+def sphere_leaf_packet(c0: wp.vec3, dc: wp.vec3, moving: int, r: float, kk: int, ii: int, n: int, t_min: float,
+                       ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, time: PacketF,
+                       best: wp.ref[PacketF], kind: wp.ref[PacketI], index: wp.ref[PacketI]) -> float:
+    """The sphere (centre c0, + dc·time when ``moving``) as a leaf for the packet's lanes (see above)."""
+    ...
+
+
+_RECT_LEAF_PACKET = (r"""
+float far = 0.0f;
+const float n0 = e1[1] * e2[2] - e1[2] * e2[1], n1 = e1[2] * e2[0] - e1[0] * e2[2], n2 = e1[0] * e2[1] - e1[1] * e2[0];
+const float nn = (n0 * n0 + n1 * n1) + n2 * n2;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz, Dx, Dy, Dz;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+""" + _LEAF_UPDATE + r"""
+const v8 denom = (n0 * Dx + n1 * Dy) + n2 * Dz;
+const v8 tp = ((n0 * (c[0] - Ox) + n1 * (c[1] - Oy)) + n2 * (c[2] - Oz)) / denom;
+const v8 rx = (Ox + tp * Dx) - c[0], ry = (Oy + tp * Dy) - c[1], rz = (Oz + tp * Dz) - c[2];
+const v8 ax = ry * e2[2] - rz * e2[1], ay = rz * e2[0] - rx * e2[2], az = rx * e2[1] - ry * e2[0];
+const v8 a = ((ax * n0 + ay * n1) + az * n2) / nn;
+const v8 bx = e1[1] * rz - e1[2] * ry, by = e1[2] * rx - e1[0] * rz, bz = e1[0] * ry - e1[1] * rx;
+const v8 b = ((bx * n0 + by * n1) + bz * n2) / nn;
+const i8 ok = (denom != 0.0f) & (tp > t_min) & (tp < hi_t) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+const v8 t = ok ? tp : (v8)(-1.0f);
+""" + _LEAF_STORE + r"""
+#else
+""" + _LEAF_LANES.replace("@LANE_HIT@", r"""{
+        const float denom = (n0 * dx[l] + n1 * dy[l]) + n2 * dz[l];
+        if (denom != 0.0f) {
+            const float tp = ((n0 * (c[0] - ox[l]) + n1 * (c[1] - oy[l])) + n2 * (c[2] - oz[l])) / denom;
+            if (tp > t_min && tp < hi_t) {
+                const float rx = (ox[l] + tp * dx[l]) - c[0], ry = (oy[l] + tp * dy[l]) - c[1];
+                const float rz = (oz[l] + tp * dz[l]) - c[2];
+                const float ax = ry * e2[2] - rz * e2[1], ay = rz * e2[0] - rx * e2[2], az = rx * e2[1] - ry * e2[0];
+                const float a = ((ax * n0 + ay * n1) + az * n2) / nn;
+                const float bx = e1[1] * rz - e1[2] * ry, by = e1[2] * rx - e1[0] * rz, bz = e1[0] * ry - e1[1] * rx;
+                const float b2 = ((bx * n0 + by * n1) + bz * n2) / nn;
+                if (a >= 0.0f && a <= 1.0f && b2 >= 0.0f && b2 <= 1.0f) t = tp;
+            }
+        }
+    }""") + r"""
+#endif
+return far;
+""")
+
+
+@wp.func_native(_RECT_LEAF_PACKET)
+def rect_leaf_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, kk: int, ii: int, n: int, t_min: float, ox: PacketF,
+                     oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, best: wp.ref[PacketF],
+                     kind: wp.ref[PacketI], index: wp.ref[PacketI]) -> float:
+    """The parallelogram c + a e1 + b e2 as a leaf for the packet's lanes (see above)."""
+    ...
+
+
+_PLANE_LEAF_PACKET = (r"""
+float far = 0.0f;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz, Dx, Dy, Dz;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+""" + _LEAF_UPDATE + r"""
+const v8 denom = (pn[0] * Dx + pn[1] * Dy) + pn[2] * Dz;
+const v8 tp = ((pn[0] * (p0[0] - Ox) + pn[1] * (p0[1] - Oy)) + pn[2] * (p0[2] - Oz)) / denom;
+const v8 t = ((denom != 0.0f) & (tp > t_min) & (tp < hi_t)) ? tp : (v8)(-1.0f);
+""" + _LEAF_STORE + r"""
+#else
+""" + _LEAF_LANES.replace("@LANE_HIT@", r"""{
+        const float denom = (pn[0] * dx[l] + pn[1] * dy[l]) + pn[2] * dz[l];
+        if (denom != 0.0f) {
+            const float tp = ((pn[0] * (p0[0] - ox[l]) + pn[1] * (p0[1] - oy[l])) + pn[2] * (p0[2] - oz[l])) / denom;
+            if (tp > t_min && tp < hi_t) t = tp;
+        }
+    }""") + r"""
+#endif
+return far;
+""")
+
+
+@wp.func_native(_PLANE_LEAF_PACKET)
+def plane_leaf_packet(p0: wp.vec3, pn: wp.vec3, kk: int, ii: int, n: int, t_min: float, ox: PacketF, oy: PacketF,
+                      oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, best: wp.ref[PacketF],
+                      kind: wp.ref[PacketI], index: wp.ref[PacketI]) -> float:
+    """The plane through p0 of normal pn for the packet's lanes, as ``intersect_plane`` in the loops
+    over the shapes (see above)."""
+    ...
 
 # Shadow rays of a camera packet's 8 shading points met by one sphere or one plane at once, as
 # clang vectors on the CPU: ``sphere_roots`` and ``intersect_plane``'s operations in the same order

@@ -27,9 +27,9 @@ from .accel import (
 from ._warp import build_once
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
-    intersect_plane, intersect_rect, intersect_sphere, max_abs, plane_hits_packet, quat_rotate_mag, ray_box,
-    box_hits_packet, rect_hits_packet, refine_on_plane, refine_on_sphere, spawn_offset, sphere_hits_packet,
-    sphere_roots,
+    intersect_plane, intersect_rect, intersect_sphere, max_abs, plane_hits_packet, plane_leaf_packet, quat_rotate_mag,
+    ray_box, box_hits_packet, rect_hits_packet, rect_leaf_packet, refine_on_plane, refine_on_sphere, spawn_offset,
+    sphere_hits_packet, sphere_leaf_packet, sphere_roots,
 )
 from .records import (
     KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_NONE, KIND_PLANE, KIND_RECT, KIND_SPHERE,
@@ -663,8 +663,29 @@ def make_trace(F: Features) -> SimpleNamespace:
         C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0."""
         pk = pk_in
         if scene.bvh_root < 0:
-            # no analytic BVH: the analytic shapes ray by ray (the packet is there for the meshes, or
-            # for the lanes' vector sampling)
+            # no analytic BVH: the spheres, planes and rectangles each for all lanes at once, in the
+            # loops' order (kinds and rows ascending: a hit replaces another only when strictly
+            # nearer, as in analytic_nearest); with disks or solids, the analytic shapes ray by ray
+            alone = scene.n_disks > 0
+            if wp.static(F.solids):
+                alone = True
+            if not alone:
+                for i in range(scene.n_spheres):
+                    sc = scene.spheres[i].c0
+                    if wp.static(F.motion):
+                        sphere_leaf_packet(sc, scene.spheres[i].c1 - sc, 1, scene.spheres[i].r, KIND_SPHERE, i, lanes,
+                                           t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best, pk.kind,
+                                           pk.index)
+                    else:
+                        sphere_leaf_packet(sc, sc, 0, scene.spheres[i].r, KIND_SPHERE, i, lanes, t_min, pk.ox, pk.oy,
+                                           pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best, pk.kind, pk.index)
+                for i in range(scene.n_planes):
+                    plane_leaf_packet(scene.planes[i].p, scene.planes[i].n, KIND_PLANE, i, lanes, t_min, pk.ox, pk.oy,
+                                      pk.oz, pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
+                for i in range(scene.n_rects):
+                    rect_leaf_packet(scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, KIND_RECT, i, lanes, t_min,
+                                     pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
+                return pk
             for k in range(lanes):
                 a = analytic_nearest(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]),
                                      wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]), t_min, pk.best[k], pk.time[k])
@@ -676,20 +697,13 @@ def make_trace(F: Features) -> SimpleNamespace:
         inv_y = PacketF()
         inv_z = PacketF()
         for k in range(lanes):
-            o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-            d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
-            inv = safe_inverse(d)
+            inv = safe_inverse(wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]))
             inv_x[k] = inv[0]
             inv_y[k] = inv[1]
             inv_z[k] = inv[2]
-            best = pk.best[k]
-            for i in range(scene.n_planes):
-                t = intersect_plane(o, d, scene.planes[i].p, scene.planes[i].n, t_min, best)
-                if t >= 0.0:
-                    best = t
-                    pk.kind[k] = KIND_PLANE
-                    pk.index[k] = i
-            pk.best[k] = best
+        for i in range(scene.n_planes):
+            plane_leaf_packet(scene.planes[i].p, scene.planes[i].n, KIND_PLANE, i, lanes, t_min, pk.ox, pk.oy, pk.oz,
+                              pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
         far_all = float(0.0)  # the farthest any lane still searches
         for k in range(PACKET):
             far_all = wp.max(far_all, pk.best[k])
@@ -731,6 +745,21 @@ def make_trace(F: Features) -> SimpleNamespace:
             j = -ref - 1
             kk = scene.bvh_prims[j][0]
             ii = scene.bvh_prims[j][1]
+            # a sphere or a rectangle for all lanes at once (the same tests and updates as below)
+            if kk == KIND_SPHERE:
+                sc = scene.spheres[ii].c0
+                if wp.static(F.motion):
+                    far_all = sphere_leaf_packet(sc, scene.spheres[ii].c1 - sc, 1, scene.spheres[ii].r, kk, ii, lanes,
+                                                 t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best,
+                                                 pk.kind, pk.index)
+                else:
+                    far_all = sphere_leaf_packet(sc, sc, 0, scene.spheres[ii].r, kk, ii, lanes, t_min, pk.ox, pk.oy,
+                                                 pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best, pk.kind, pk.index)
+                continue
+            if kk == KIND_RECT:
+                far_all = rect_leaf_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, kk, ii, lanes,
+                                           t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
+                continue
             far_all = float(0.0)
             for k in range(lanes):
                 # (the lane's entries read in place: a copy of the vectors would wait for the
