@@ -326,10 +326,10 @@ def _lane_by_lane(native, src):
 def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
     """The shadow tests and set-ups a packet runs for its 8 lanes at once (``geometry``:
     ``sphere_hits_packet``, ``plane_hits_packet``, ``rect_hits_packet``, ``box_hits_packet``,
-    ``shadow_rays_packet``; ``lights.point_light_packet``), as clang vectors and lane by lane (their
+    ``shadow_rays_packet``; ``lights.point_light_packet``, ``lobe_packet``), as clang vectors and lane by lane (their
     CUDA branch, compiled here on the CPU), answer each lane exactly as the scalar functions do
-    (``sphere_roots``, ``intersect_plane``, ``intersect_rect``, ``ray_box``, ``shadow`` and
-    ``point_lights_direct``'s arithmetic): random rays aimed at the shapes, lengths ending near
+    (``sphere_roots``, ``intersect_plane``, ``intersect_rect``, ``ray_box``, ``shadow``,
+    ``point_lights_direct``'s and ``blinn_phong``'s arithmetic): random rays aimed at the shapes, lengths ending near
     the hits, axis-aligned directions, origins on the surfaces, moving spheres, points behind
     their normals and lights on the surface."""
     import warp as wp
@@ -375,7 +375,7 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
 
     P = accel.PacketF
 
-    def kernel_for(sph, pln, rct, box, shd, pl):
+    def kernel_for(sph, pln, rct, box, shd, pl, lob):
         @wp.func
         def pk(a: wp.array(dtype=wp.vec3, ndim=2), i: int, c: int) -> accel.PacketF:
             v = accel.PacketF()
@@ -407,7 +407,7 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
             out[i, 0] = sph(c0[i], dc[i], 1, r[i], m, ox, oy, oz, dx, dy, dz, t_max, time)
             out[i, 1] = pln(c0[i], nrm[i], m, ox, oy, oz, dx, dy, dz, t_max)
             out[i, 2] = rct(c0[i], e1[i], e2[i], m, ox, oy, oz, dx, dy, dz, t_max)
-            out[i, 3] = box(lo[i], hi[i], m, ox, oy, oz, dx, dy, dz, t_max)
+            out[i, 3] = box(lo[i], hi[i], m, ox, oy, oz, dx, dy, dz, 0.05, t_max)
             sx, sy, sz, st = accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF()
             # shadow rays from o to the sphere's centre
             yx = accel.PacketF(c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0], c0[i][0])
@@ -423,11 +423,15 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
                                                  accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF())
             out[i, 5] = pl(pos[i], directional[i], stop[i], m, ox, oy, oz, qx, qy, qz, gx, gy, gz, nx, ny, nz, vx, vy,
                            vz, ld, lnl, lhl, lnh, lx, ly, lz, lt_)
+            # an area light's samples in the directions d (lights.lobe_packet)
+            bn, bh, bnh = accel.PacketF(), accel.PacketF(), accel.PacketF()
+            out[i, 13] = lob(m, dx, dy, dz, gx, gy, gz, nx, ny, nz, vx, vy, vz, bn, bh, bnh)
             # the scalar answers, lane by lane; bit 8 + k of out[i, 6..]: a value that differs
             want = wp.vec4i(0, 0, 0, 0)
             want2 = int(0)
             want3 = int(0)
             bad = int(0)
+            want4 = int(0)
             for k in range(accel.PACKET):
                 if (m >> k) & 1 == 0:
                     continue
@@ -441,7 +445,7 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
                     want[1] = want[1] | (1 << k)
                 if g.intersect_rect(ok, dk, c0[i], e1[i], e2[i], 0.0, t_max[k]) >= 0.0:
                     want[2] = want[2] | (1 << k)
-                if g.ray_box(ok, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), dk), lo[i], hi[i], 0.0, t_max[k]):
+                if g.ray_box(ok, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), dk), lo[i], hi[i], 0.05, t_max[k]):
                     want[3] = want[3] | (1 << k)
                 to_t = c0[i] - ok
                 dist = wp.length(to_t)
@@ -450,6 +454,15 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
                     s = to_t / dist
                     if s[0] != sx[k] or s[1] != sy[k] or s[2] != sz[k] or dist - stop[i] != st[k]:
                         bad = bad | (1 << k)
+                # blinn_phong's tests and values towards d (as area_lights_packet takes them)
+                g_d = wp.vec3(gx[k], gy[k], gz[k])
+                n_d = wp.vec3(nx[k], ny[k], nz[k])
+                if wp.dot(g_d, dk) > 0.0 and wp.dot(n_d, dk) > 0.0:
+                    want4 = want4 | (1 << k)
+                    h_d = dk + wp.vec3(vx[k], vy[k], vz[k])
+                    hl_d = wp.length(h_d)
+                    if wp.dot(n_d, dk) != bn[k] or hl_d != bh[k] or wp.dot(n_d, h_d / hl_d) != bnh[k]:
+                        bad = bad | (1 << (24 + k))
                 # point_lights_direct's tests and values
                 l = pos[i]
                 dl = float(0.0)
@@ -486,11 +499,13 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
             out[i, 10] = want2
             out[i, 11] = want3
             out[i, 12] = bad
+            out[i, 14] = want4
         return k
 
     natives = [(g.sphere_hits_packet, g._SPHERE_HITS_PACKET), (g.plane_hits_packet, g._PLANE_HITS_PACKET),
                (g.rect_hits_packet, g._RECT_HITS_PACKET), (g.box_hits_packet, g._BOX_HITS_PACKET),
-               (g.shadow_rays_packet, g._SHADOW_RAYS_PACKET), (lt.point_light_packet, lt._POINT_LIGHT_PACKET)]
+               (g.shadow_rays_packet, g._SHADOW_RAYS_PACKET), (lt.point_light_packet, lt._POINT_LIGHT_PACKET),
+               (lt.lobe_packet, lt._LOBE_PACKET)]
     arrays = dict(o=(o, wp.vec3), d=(d, wp.vec3), tm=(t_max, float), tt=(time, float), c0=(c0, wp.vec3),
                   dc=(dc, wp.vec3), r=(r, float), e1=(e1, wp.vec3), e2=(e2, wp.vec3), nrm=(nrm, wp.vec3),
                   lo=(lo, wp.vec3), hi=(hi, wp.vec3), gn=(gn, wp.vec3), sn=(sn, wp.vec3), vv=(vv, wp.vec3),
@@ -498,11 +513,12 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
     inputs = [wp.array(a, dtype=t, device="cpu") for a, t in arrays.values()]
     for variant in ("vectors", "lanes"):
         fns = [f if variant == "vectors" else _lane_by_lane(f, src) for f, src in natives]
-        out = wp.zeros((n, 13), dtype=int, device="cpu")
+        out = wp.zeros((n, 15), dtype=int, device="cpu")
         wp.launch(kernel_for(*fns), dim=n, device="cpu", inputs=inputs + [out])
         res = out.numpy()
         for j, name in enumerate(("sphere", "plane", "rectangle", "box", "shadow rays", "point light")):
             np.testing.assert_array_equal(res[:, j], res[:, 6 + j], err_msg=f"{variant}: {name}")
+        np.testing.assert_array_equal(res[:, 13], res[:, 14], err_msg=f"{variant}: lobe")
         assert (res[:, 12] == 0).all(), variant
         # the cases are there: hits and misses of every test, lanes cut by the stop, no light
         hits = [np.unpackbits(res[:, 6 + j].astype(np.uint8)[:, None], axis=1).sum() for j in range(4)]

@@ -501,7 +501,7 @@ def ray_box(o: wp.vec3, inv_d: wp.vec3, lo: wp.vec3, hi: wp.vec3, t_min: float, 
 
 
 # A packet's rays against one box at once, as clang vectors on the CPU: ``ray_box`` with
-# inv_d = 1/d and t_min = 0, the same operations in the same order (Warp's CPU fmin / fmax), so a
+# inv_d = 1/d, the same operations in the same order (Warp's CPU fmin / fmax), so a
 # lane passes exactly when the scalar test passes. On CUDA the same operations lane by lane.
 _BOX_HITS_PACKET = r"""
 int res = 0;
@@ -511,7 +511,7 @@ auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
 const v8 ix = 1.0f / Dx, iy = 1.0f / Dy, iz = 1.0f / Dz;
 const v8 ax = (lo[0] - Ox) * ix, ay = (lo[1] - Oy) * iy, az = (lo[2] - Oz) * iz;
 const v8 bx = (hi[0] - Ox) * ix, by = (hi[1] - Oy) * iy, bz = (hi[2] - Oz) * iz;
-const v8 near = vmax(vmax(vmin(ax, bx), vmin(ay, by)), vmax(vmin(az, bz), (v8)(0.0f)));
+const v8 near = vmax(vmax(vmin(ax, bx), vmin(ay, by)), vmax(vmin(az, bz), (v8)(t_min)));
 const v8 far = vmin(vmin(vmax(ax, bx), vmax(ay, by)), vmin(vmax(az, bz), Tm));
 const i8 hit = near <= far * 1.0000004f;
 for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
@@ -521,7 +521,7 @@ for (int l = 0; l < 8; ++l) {
     const float ix = 1.0f / dx[l], iy = 1.0f / dy[l], iz = 1.0f / dz[l];
     const float ax = (lo[0] - ox[l]) * ix, ay = (lo[1] - oy[l]) * iy, az = (lo[2] - oz[l]) * iz;
     const float bx = (hi[0] - ox[l]) * ix, by = (hi[1] - oy[l]) * iy, bz = (hi[2] - oz[l]) * iz;
-    const float near = wp::max(wp::max(wp::min(ax, bx), wp::min(ay, by)), wp::max(wp::min(az, bz), 0.0f));
+    const float near = wp::max(wp::max(wp::min(ax, bx), wp::min(ay, by)), wp::max(wp::min(az, bz), t_min));
     const float far = wp::min(wp::min(wp::max(ax, bx), wp::max(ay, by)), wp::min(wp::max(az, bz), t_max[l]));
     if (near <= far * 1.0000004f) res |= 1 << l;
 }
@@ -532,9 +532,9 @@ return res;
 
 @wp.func_native(_BOX_HITS_PACKET)
 def box_hits_packet(lo: wp.vec3, hi: wp.vec3, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
-                    dy: PacketF, dz: PacketF, t_max: PacketF) -> int:
-    """The lanes (of the bit mask ``lanes``) whose ray (o, d) meets the box [lo, hi] in [0, t_max],
-    as ``ray_box(o, 1/d, lo, hi, 0, t_max)`` says."""
+                    dy: PacketF, dz: PacketF, t_min: float, t_max: PacketF) -> int:
+    """The lanes (of the bit mask ``lanes``) whose ray (o, d) meets the box [lo, hi] in [t_min, t_max],
+    as ``ray_box(o, 1/d, lo, hi, t_min, t_max)`` says."""
     ...
 
 

@@ -164,6 +164,55 @@ def point_light_packet(pos: wp.vec3, directional: int, stop: float, lanes: int, 
     ...
 
 
+
+# The Blinn-Phong geometry of a packet's 8 shading points towards given unit directions l (an
+# area light's samples), as ``blinn_phong`` computes it before the material's colours: which lanes
+# see l in front of both normals (g·l > 0, the test before the call, and n·l > 0), n·l, |l + v|
+# and n·(l + v)/|l + v|, the same operations in the same order. On CUDA lane by lane.
+_LOBE_PACKET = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Lx, Ly, Lz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy, Vz;
+__builtin_memcpy(&Lx, &lx, 32); __builtin_memcpy(&Ly, &ly, 32); __builtin_memcpy(&Lz, &lz, 32);
+__builtin_memcpy(&Gx, &gx, 32); __builtin_memcpy(&Gy, &gy, 32); __builtin_memcpy(&Gz, &gz, 32);
+__builtin_memcpy(&Nx, &nx, 32); __builtin_memcpy(&Ny, &ny, 32); __builtin_memcpy(&Nz, &nz, 32);
+__builtin_memcpy(&Vx, &vx, 32); __builtin_memcpy(&Vy, &vy, 32); __builtin_memcpy(&Vz, &vz, 32);
+i8 ok;
+for (int l = 0; l < 8; ++l) ok[l] = (lanes >> l) & 1 ? -1 : 0;
+ok &= ~(((Gx * Lx + Gy * Ly) + Gz * Lz) <= 0.0f);
+const v8 nl = (Nx * Lx + Ny * Ly) + Nz * Lz;
+ok &= ~(nl <= 0.0f);
+const v8 hx = Lx + Vx, hy = Ly + Vy, hz = Lz + Vz;
+const v8 hl = __builtin_elementwise_sqrt((hx * hx + hy * hy) + hz * hz);
+const v8 nh = (Nx * (hx / hl) + Ny * (hy / hl)) + Nz * (hz / hl);
+__builtin_memcpy(&out_nl, &nl, 32); __builtin_memcpy(&out_hl, &hl, 32); __builtin_memcpy(&out_nh, &nh, 32);
+for (int l = 0; l < 8; ++l) res |= ok[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    if (((gx[l] * lx[l] + gy[l] * ly[l]) + gz[l] * lz[l]) <= 0.0f) continue;
+    const float nl = (nx[l] * lx[l] + ny[l] * ly[l]) + nz[l] * lz[l];
+    if (nl <= 0.0f) continue;
+    const float hx = lx[l] + vx[l], hy = ly[l] + vy[l], hz = lz[l] + vz[l];
+    const float hl = sqrtf((hx * hx + hy * hy) + hz * hz);
+    out_nl[l] = nl; out_hl[l] = hl;
+    out_nh[l] = (nx[l] * (hx / hl) + ny[l] * (hy / hl)) + nz[l] * (hz / hl);
+    res |= 1 << l;
+}
+#endif
+return res;
+"""
+
+
+@wp.func_native(_LOBE_PACKET)
+def lobe_packet(lanes: int, lx: PacketF, ly: PacketF, lz: PacketF, gx: PacketF, gy: PacketF, gz: PacketF,
+                nx: PacketF, ny: PacketF, nz: PacketF, vx: PacketF, vy: PacketF, vz: PacketF,
+                out_nl: wp.ref[PacketF], out_hl: wp.ref[PacketF], out_nh: wp.ref[PacketF]) -> int:
+    """See above: bit l set where lane l (of the bit mask ``lanes``) sees l in front of g and n."""
+    ...
+
 @build_once
 def make_lights(F: Features) -> SimpleNamespace:
     """The direct-lighting device functions for one feature set (built once per process)."""
@@ -246,6 +295,9 @@ def make_lights(F: Features) -> SimpleNamespace:
         sy = PacketF()
         sz = PacketF()
         st = PacketF()
+        nl = PacketF()
+        hl = PacketF()
+        nh = PacketF()
         for j in range(scene.n_alights):
             ns = scene.alights[j].samples
             dim = hash2(wp.uint32(ROOT_KEY), wp.uint32(LIGHT_DIM_BASE + j))
@@ -280,16 +332,17 @@ def make_lights(F: Features) -> SimpleNamespace:
                     scalar = m >> 8
                     drawn = live & ~scalar
                     go = int(0)  # the lanes whose sample lights them if nothing is in the way
+                    # blinn_phong for the lanes: its geometry at once, then each lane's colour
+                    m = lobe_packet(m & 255, l0, l1, l2, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz,
+                                    nl, hl, nh)
                     for k in range(lanes):
                         if (m >> k) & 1 == 0:
                             continue
-                        l = wp.vec3(l0[k], l1[k], l2[k])
-                        if wp.dot(wp.vec3(sp.gx[k], sp.gy[k], sp.gz[k]), l) <= 0.0:
-                            continue
-                        n = wp.vec3(sp.nx[k], sp.ny[k], sp.nz[k])
-                        f = blinn_phong(n, l, wp.vec3(sp.vx[k], sp.vy[k], sp.vz[k]),
-                                        wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]), wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k]),
-                                        sp.p_exp[k])
+                        ks = wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k])
+                        spec = float(0.0)
+                        if hl[k] > 0.0 and wp.max(ks) > 0.0:
+                            spec = phong_power(nh[k], sp.p_exp[k])
+                        f = wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]) * nl[k] + ks * spec
                         if wp.max(f) <= 0.0:
                             continue
                         lane_addi(out.rays, k, 1)

@@ -522,9 +522,6 @@ def make_trace(F: Features) -> SimpleNamespace:
         (or at t = 0), or a packet the tree cannot take, goes through ``mesh_first_hit`` alone."""
         mp = MeshPacket()
         bound = PacketF()  # each lane's search bound: its nearest hit so far
-        inv_x = PacketF()  # each lane's 1/d, for the instance boxes
-        inv_y = PacketF()
-        inv_z = PacketF()
         for k in range(PACKET):
             mp.inst[k] = -1
             bound[k] = -1.0
@@ -532,10 +529,6 @@ def make_trace(F: Features) -> SimpleNamespace:
             bound[k] = pk.best[k]
             if pk.kind[k] != KIND_NONE:
                 bound[k] = pk.best[k] * (1.0 - TIE)
-            inv = wp.cw_div(wp.vec3(1.0, 1.0, 1.0), wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]))
-            inv_x[k] = inv[0]
-            inv_y[k] = inv[1]
-            inv_z[k] = inv[2]
         for i in range(scene.n_inst):
             ox = PacketF()
             oy = PacketF()
@@ -547,11 +540,15 @@ def make_trace(F: Features) -> SimpleNamespace:
             active = int(0)
             for k in range(PACKET):
                 reach[k] = -1.0
+            # the instance's box for all lanes at once (ray_box's test)
+            inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, (1 << lanes) - 1, pk.ox, pk.oy, pk.oz, pk.dx,
+                                     pk.dy, pk.dz, t_min, bound)
+            if inside == 0:
+                continue
             for k in range(lanes):
-                o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
-                inv_d = wp.vec3(inv_x[k], inv_y[k], inv_z[k])
-                if ray_box(o, inv_d, scene.insts[i].lo, scene.insts[i].hi, t_min, bound[k]):
+                if (inside >> k) & 1 != 0:
+                    o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
+                    d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
                     pose = instance_pose(scene, i, pk.time[k])
                     so = to_object(pose, o + d * t_min)
                     sd = dir_to_object(pose, d)
@@ -1257,7 +1254,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         if wp.static(F.meshes):
             # each instance's box for all lanes at once, then each lane in it through the triangles
             for i in range(scene.n_inst):
-                inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left, ox, oy, oz, dx, dy, dz, t_max)
+                inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left, ox, oy, oz, dx, dy, dz, 0.0, t_max)
                 if inside == 0:
                     continue
                 for k in range(n):
