@@ -121,8 +121,8 @@ def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, 
     """With the analytic BVH, up to ``trace.PACKET`` camera rays of a pixel go through it
     together (``trace_packet``); without it each goes alone through the loops. Full packets,
     a partial one (11 spp), per-pixel counts (adaptive), rays with their own lens origins and
-    times (moving spheres), every bounded kind, and exact ties (two coincident rectangles, the
-    lower row wins): the images equal the loops' bit for bit."""
+    times (moving spheres), every bounded kind, and exact ties (two coincident rectangles, two
+    coincident disks: the lower row wins): the images equal the loops' bit for bit."""
     from warprt.trace import PACKET
 
     rng = np.random.default_rng(5)
@@ -132,6 +132,8 @@ def test_camera_rays_traced_in_packets_find_the_same_hits_as_one_by_one(device, 
                    for k, (c, r) in enumerate(zip(centers, rng.uniform(0.05, 0.3, 24))))
     tie = dict(corner=(-1.0, -0.9, -1.5), edge1=(2.0, 0.2, 0.0), edge2=(0.0, 0.3, 1.0))
     shapes += (warprt.Rectangle(**tie, material="ball"), warprt.Rectangle(**tie, material="floor"))
+    disk_tie = dict(center=(0.9, 0.7, -0.8), normal=(0.2, 0.1, 1.0), radius=0.45)  # lanes test disks one by one
+    shapes += (warprt.Disk(**disk_tie, material="floor"), warprt.Disk(**disk_tie, material="ball"))
     shapes += tuple(warprt.Rectangle(corner=tuple(rng.uniform(-1.5, 1.5, 3)), edge1=tuple(rng.normal(0, 0.4, 3)),
                                      edge2=tuple(rng.normal(0, 0.4, 3)), material="ball") for _ in range(6))
     shapes += tuple(warprt.Disk(center=tuple(rng.uniform(-1.5, 1.5, 3)), normal=tuple(rng.normal(0, 1, 3)),
