@@ -167,6 +167,24 @@ for (int l = 0; l < n; ++l) {
 }
 """
 
+# ``sphere_roots`` for a packet's 8 rays (clang vectors; ``vmin``/``vmax`` as Warp's CPU fmin/fmax):
+# each lane's roots lo <= hi of the sphere of radius r centred at c0 (+ dc·time when ``moving``),
+# -1e38 for both where the ray misses it. Spliced into the sphere snippets below.
+_SPHERE_ROOTS = r"""v8 cx = (v8)(c0[0]), cy = (v8)(c0[1]), cz = (v8)(c0[2]);
+if (moving != 0) { cx = c0[0] + dc[0] * Tt; cy = c0[1] + dc[1] * Tt; cz = c0[2] + dc[2] * Tt; }
+const v8 fx = Ox - cx, fy = Oy - cy, fz = Oz - cz;
+const v8 b = -((fx * Dx + fy * Dy) + fz * Dz);
+const v8 lx = fx + b * Dx, ly = fy + b * Dy, lz = fz + b * Dz;
+const v8 disc = r * r - ((lx * lx + ly * ly) + lz * lz);
+const v8 sq = __builtin_elementwise_sqrt(disc);
+const v8 q = b + (b >= 0.0f ? sq : -sq);
+const v8 cc = ((fx * fx + fy * fy) + fz * fz) - r * r;
+const i8 zero_q = q == 0.0f;
+const v8 t0 = zero_q ? (v8)(0.0f) : cc / q, t1 = zero_q ? (v8)(0.0f) : q;
+const i8 miss = (disc < 0.0f) | (i8)(r <= 0.0f ? -1 : 0);
+const v8 lo = miss ? (v8)(-1.0e38f) : vmin(t0, t1), hi = miss ? (v8)(-1.0e38f) : vmax(t0, t1);"""
+
+
 _SPHERE_LEAF_PACKET = (r"""
 float far = 0.0f;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
@@ -179,19 +197,7 @@ __builtin_memcpy(&Tt, &time, 32);
 auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
 auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
 """ + _LEAF_UPDATE + r"""
-v8 cx = (v8)(c0[0]), cy = (v8)(c0[1]), cz = (v8)(c0[2]);
-if (moving != 0) { cx = c0[0] + dc[0] * Tt; cy = c0[1] + dc[1] * Tt; cz = c0[2] + dc[2] * Tt; }
-const v8 fx = Ox - cx, fy = Oy - cy, fz = Oz - cz;
-const v8 b = -((fx * Dx + fy * Dy) + fz * Dz);
-const v8 lx = fx + b * Dx, ly = fy + b * Dy, lz = fz + b * Dz;
-const v8 disc = r * r - ((lx * lx + ly * ly) + lz * lz);
-const v8 sq = __builtin_elementwise_sqrt(disc);
-const v8 q = b + (b >= 0.0f ? sq : -sq);
-const v8 cc = ((fx * fx + fy * fy) + fz * fz) - r * r;
-const i8 zero_q = q == 0.0f;
-const v8 t0 = zero_q ? (v8)(0.0f) : cc / q, t1 = zero_q ? (v8)(0.0f) : q;
-const i8 miss = (disc < 0.0f) | (i8)(r <= 0.0f ? -1 : 0);
-const v8 lo = miss ? (v8)(-1.0e38f) : vmin(t0, t1), hi = miss ? (v8)(-1.0e38f) : vmax(t0, t1);
+@SPHERE_ROOTS@
 const v8 t = ((lo > t_min) & (lo < hi_t)) ? lo : (((hi > t_min) & (hi < hi_t)) ? hi : (v8)(-1.0f));
 """ + _LEAF_STORE + r"""
 #else
@@ -214,7 +220,7 @@ const v8 t = ((lo > t_min) & (lo < hi_t)) ? lo : (((hi > t_min) & (hi < hi_t)) ?
     }""") + r"""
 #endif
 return far;
-""")
+""").replace("@SPHERE_ROOTS@", _SPHERE_ROOTS)
 
 
 @wp.func_native(_SPHERE_LEAF_PACKET)
@@ -325,19 +331,8 @@ __builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy
 __builtin_memcpy(&Tm, &t_max, 32); __builtin_memcpy(&Tt, &time, 32);
 auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
 auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
-v8 cx = (v8)(c0[0]), cy = (v8)(c0[1]), cz = (v8)(c0[2]);
-if (moving != 0) { cx = c0[0] + dc[0] * Tt; cy = c0[1] + dc[1] * Tt; cz = c0[2] + dc[2] * Tt; }
-const v8 fx = Ox - cx, fy = Oy - cy, fz = Oz - cz;
-const v8 b = -((fx * Dx + fy * Dy) + fz * Dz);
-const v8 lx = fx + b * Dx, ly = fy + b * Dy, lz = fz + b * Dz;
-const v8 disc = r * r - ((lx * lx + ly * ly) + lz * lz);
-const v8 sq = __builtin_elementwise_sqrt(disc);
-const v8 q = b + (b >= 0.0f ? sq : -sq);
-const v8 cc = ((fx * fx + fy * fy) + fz * fz) - r * r;
-const i8 zero_q = q == 0.0f;
-const v8 t0 = zero_q ? (v8)(0.0f) : cc / q, t1 = zero_q ? (v8)(0.0f) : q;
-const v8 lo = vmin(t0, t1), hi = vmax(t0, t1);
-const i8 hit = ~(disc < 0.0f) & (((lo > 0.0f) & (lo < Tm)) | ((hi > 0.0f) & (hi < Tm)));
+@SPHERE_ROOTS@
+const i8 hit = ((lo > 0.0f) & (lo < Tm)) | ((hi > 0.0f) & (hi < Tm));
 for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
 #else
 for (int l = 0; l < 8; ++l) {
@@ -358,7 +353,7 @@ for (int l = 0; l < 8; ++l) {
 #endif
 }
 return res;
-"""
+""".replace("@SPHERE_ROOTS@", _SPHERE_ROOTS)
 
 
 @wp.func_native(_SPHERE_HITS_PACKET)

@@ -213,6 +213,17 @@ def lobe_packet(lanes: int, lx: PacketF, ly: PacketF, lz: PacketF, gx: PacketF, 
     """See above: bit l set where lane l (of the bit mask ``lanes``) sees l in front of g and n."""
     ...
 
+
+@wp.func(inline=True)
+def lobe_colour(sp: ShadePacket, k: int, nl: float, hl: float, nh: float) -> wp.vec3:
+    """``blinn_phong``'s colour for lane k of a packet's shading points from its n·l, |l + v| and
+    n·(l + v)/|l + v| (``lobe_packet``, ``point_light_packet``): the same operations."""
+    ks = wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k])
+    spec = float(0.0)
+    if hl > 0.0 and wp.max(ks) > 0.0:
+        spec = phong_power(nh, sp.p_exp[k])
+    return wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]) * nl + ks * spec
+
 @build_once
 def make_lights(F: Features) -> SimpleNamespace:
     """The direct-lighting device functions for one feature set (built once per process)."""
@@ -338,11 +349,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                     for k in range(lanes):
                         if (m >> k) & 1 == 0:
                             continue
-                        ks = wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k])
-                        spec = float(0.0)
-                        if hl[k] > 0.0 and wp.max(ks) > 0.0:
-                            spec = phong_power(nh[k], sp.p_exp[k])
-                        f = wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]) * nl[k] + ks * spec
+                        f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
                         if wp.max(f) <= 0.0:
                             continue
                         lane_addi(out.rays, k, 1)
@@ -413,12 +420,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             for k in range(PACKET):
                 if (m >> k) & 1 == 0:
                     continue
-                # blinn_phong's colour from the lane's n·l and n·h
-                ks = wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k])
-                spec = float(0.0)
-                if hl[k] > 0.0 and wp.max(ks) > 0.0:
-                    spec = phong_power(nh[k], sp.p_exp[k])
-                f = wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]) * nl[k] + ks * spec
+                f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
                 if wp.max(f) <= 0.0:
                     continue
                 out.rays[k] += 1
