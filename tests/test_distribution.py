@@ -430,6 +430,31 @@ def _film_with_stats(w, h, seed, n0):
     return f
 
 
+def test_adaptive_shares_round_to_integers_keeping_their_sum_largest_parts_first():
+    """The rounding of adaptive sampling's shares (``film._round_keeping_sum``, a histogram of the
+    fractional parts, then the one bucket ordered exactly) against a full sort: the floors, plus
+    one for the round(Σ x − Σ floor x) largest fractional parts, ties to the lower index; on
+    random shares, shares with many equal parts (every part in one bucket, or parts that fall on
+    bucket edges), integers, and budgets of one extra sample."""
+    from warprt.film import ROUND_BUCKETS, _round_keeping_sum
+
+    rng = np.random.default_rng(11)
+    edges = np.arange(ROUND_BUCKETS) / (ROUND_BUCKETS - 1)
+    cases = [np.minimum(4 + 4 * rng.exponential(1.0, 65536), 64.0), rng.random(5000) * 30,
+             np.full(4097, 2.5), np.round(rng.random(20000) * 9, 2), rng.integers(0, 9, 3000).astype(float),
+             rng.integers(0, 5, 9000) + rng.choice(edges[::97], 9000), np.array([0.25, 0.5, 0.75, 0.5, 0.5]),
+             np.array([1e-9, 0.5 + 1e-9, 0.5, 0.5]), np.array([2.0, 3.0]), np.array([0.3, 0.3, 0.4])]
+    for x in cases:
+        base = np.floor(x)
+        extra = int(round(float(x.sum()) - float(base.sum())))
+        want = base.copy()
+        want[np.lexsort((np.arange(x.size), -(x - base)))[:extra]] += 1.0  # largest part first, then lower index
+        got = _round_keeping_sum(x)
+        np.testing.assert_array_equal(got, want.astype(np.int32))
+        assert got.sum() == round(float(x.sum()))
+        assert np.all(np.abs(got - x) < 1.0)
+
+
 @pytest.mark.parametrize("n0, spp", [(4, 16), (1, 2)], ids=["pilot of 4", "pilot of 1"])
 def test_adaptive_counts_never_read_the_pixels_own_samples(n0, spp):
     """A pixel's count, and those of every pixel of its checkerboard colour, must not change when

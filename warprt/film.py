@@ -109,7 +109,8 @@ class Film:
         if self.counts is None:
             return (accum * np.float32(1.0 / spp)).reshape(self.height, self.width, 3)
         inv = np.float32(1.0) / np.minimum(self.counts, spp).astype(np.float32)  # as the device kernel
-        return (accum * inv[:, None]).reshape(self.height, self.width, 3)
+        # (each pixel's reciprocal repeated per channel: broadcasting it over the 3 channels took 5x)
+        return (accum.reshape(-1) * np.repeat(inv, 3)).reshape(self.height, self.width, 3)
 
     def device_image(self, spp: int) -> "wp.array":
         """The mean of the samples as a (H, W, 3) float32 ``wp.array`` on the film's device (the
@@ -211,15 +212,23 @@ def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     base = np.floor(x)
     extra = int(round(float(x.sum()) - float(base.sum())))
     if extra > 0:
-        # the extra largest fractional parts in linear time (a partition, not a sort): those
-        # above the extra-th largest, then the ties with it, lowest index first
-        frac = base - x
-        kth = np.partition(frac, extra - 1)[extra - 1]
-        above = frac < kth
-        ties = np.flatnonzero(frac == kth)[:extra - int(np.count_nonzero(above))]
-        base[above] += 1.0
-        base[ties] += 1.0
+        # the extra largest fractional parts in linear time: a histogram of the parts in
+        # ROUND_BUCKETS buckets finds the bucket the extra-th falls in; every part in a higher
+        # bucket is larger than all in it, and that bucket's few are ordered exactly (largest
+        # first, then the lower index). x - floor(x) is exact, and a bucket is monotone in it.
+        f = x - base
+        q = (f * float(ROUND_BUCKETS - 1)).astype(np.int32)
+        from_top = np.cumsum(np.bincount(q, minlength=ROUND_BUCKETS)[::-1])
+        b = ROUND_BUCKETS - 1 - int(np.searchsorted(from_top, extra))
+        above = q > b
+        in_b = np.flatnonzero(q == b)
+        rest = extra - int(np.count_nonzero(above))
+        base += above  # (a mask's in-place add: 20x the time of adding the booleans)
+        base[in_b[np.lexsort((in_b, -f[in_b]))[:rest]]] += 1.0
     return base.astype(np.int32)
+
+
+ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
 
 
 def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:
