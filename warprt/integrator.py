@@ -305,7 +305,10 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 if packed:
                     for k in range(lanes, PACKET):
                         pk.best[k] = -1.0  # an unused lane: no box is entered for it
-                    pk = trace_packet(scene, pk, params.t_min, lanes)
+                    hits = trace_packet(scene, pk, params.t_min, lanes)
+                    pk.best = hits.best
+                    pk.kind = hits.kind
+                    pk.index = hits.index
                     if wp.static(F.meshes):
                         if mesh_packed:
                             mp = mesh_packet(scene, pk, params.t_min, lanes)

@@ -49,6 +49,16 @@ MESH_PACKET_MIN = 5
 
 
 @wp.struct
+class PacketHits:
+    """A camera packet's nearest analytic hits so far (``CameraPacket``'s best, kind and index),
+    what ``trace_packet`` changes: returned alone, so that the packet's rays are not copied."""
+
+    best: PacketF
+    kind: PacketI
+    index: PacketI
+
+
+@wp.struct
 class CameraPacket:
     """Up to PACKET camera rays of one pixel (origins, unit directions, times) and, per ray, the
     nearest analytic hit so far: its t (the ray's t_max before any; below 0 for an unused lane),
@@ -650,7 +660,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         return h
 
     @wp.func
-    def trace_packet(scene: SceneData, pk_in: CameraPacket, t_min: float, lanes: int) -> CameraPacket:
+    def trace_packet(scene: SceneData, pk: CameraPacket, t_min: float, lanes: int) -> PacketHits:
         """The nearest analytic hit (planes, then the BVH over the bounded shapes) of each of the
         first ``lanes`` rays of a packet, as ``closest_hit`` finds it for each ray alone: the
         same tests with the same bounds, so the same hit, bit for bit. The packet goes through
@@ -658,7 +668,10 @@ def make_trace(F: Features) -> SimpleNamespace:
         nearest hit, children nearest first by the least entry over the lanes, so the rays of
         one pixel share each node's load and the per-lane box tests (a fixed-length loop the
         C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0."""
-        pk = pk_in
+        hits = PacketHits()
+        hits.best = pk.best
+        hits.kind = pk.kind
+        hits.index = pk.index
         if scene.bvh_root < 0:
             # no analytic BVH: the spheres, planes and rectangles each for all lanes at once, in the
             # loops' order (kinds and rows ascending: a hit replaces another only when strictly
@@ -671,25 +684,25 @@ def make_trace(F: Features) -> SimpleNamespace:
                     sc = scene.spheres[i].c0
                     if wp.static(F.motion):
                         sphere_leaf_packet(sc, scene.spheres[i].c1 - sc, 1, scene.spheres[i].r, KIND_SPHERE, i, lanes,
-                                           t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best, pk.kind,
-                                           pk.index)
+                                           t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.time, hits.best, hits.kind,
+                                           hits.index)
                     else:
                         sphere_leaf_packet(sc, sc, 0, scene.spheres[i].r, KIND_SPHERE, i, lanes, t_min, pk.ox, pk.oy,
-                                           pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best, pk.kind, pk.index)
+                                           pk.oz, pk.dx, pk.dy, pk.dz, pk.time, hits.best, hits.kind, hits.index)
                 for i in range(scene.n_planes):
                     plane_leaf_packet(scene.planes[i].p, scene.planes[i].n, KIND_PLANE, i, lanes, t_min, pk.ox, pk.oy,
-                                      pk.oz, pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
+                                      pk.oz, pk.dx, pk.dy, pk.dz, hits.best, hits.kind, hits.index)
                 for i in range(scene.n_rects):
                     rect_leaf_packet(scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, KIND_RECT, i, lanes, t_min,
-                                     pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
-                return pk
+                                     pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, hits.best, hits.kind, hits.index)
+                return hits
             for k in range(lanes):
                 a = analytic_nearest(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]),
-                                     wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]), t_min, pk.best[k], pk.time[k])
-                pk.best[k] = a.t
-                pk.kind[k] = a.kind
-                pk.index[k] = a.index
-            return pk
+                                     wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]), t_min, hits.best[k], pk.time[k])
+                hits.best[k] = a.t
+                hits.kind[k] = a.kind
+                hits.index[k] = a.index
+            return hits
         inv_x = PacketF()
         inv_y = PacketF()
         inv_z = PacketF()
@@ -700,10 +713,10 @@ def make_trace(F: Features) -> SimpleNamespace:
             inv_z[k] = inv[2]
         for i in range(scene.n_planes):
             plane_leaf_packet(scene.planes[i].p, scene.planes[i].n, KIND_PLANE, i, lanes, t_min, pk.ox, pk.oy, pk.oz,
-                              pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
+                              pk.dx, pk.dy, pk.dz, hits.best, hits.kind, hits.index)
         far_all = float(0.0)  # the farthest any lane still searches
         for k in range(PACKET):
-            far_all = wp.max(far_all, pk.best[k])
+            far_all = wp.max(far_all, hits.best[k])
         refs = StackRefs()
         entry = StackDist()
         refs[0] = scene.bvh_root
@@ -716,7 +729,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             if ref >= 0:
                 # the scalar traversal's test, lane by lane (an inactive lane's best < 0 fails it):
                 # per child, the least entry over the lanes that meet it (PACKET_MISS: none)
-                ee = packet_node(scene.bvh_nodes, ref, pk.ox, pk.oy, pk.oz, inv_x, inv_y, inv_z, pk.best)
+                ee = packet_node(scene.bvh_nodes, ref, pk.ox, pk.oy, pk.oz, inv_x, inv_y, inv_z, hits.best)
                 e0 = ee[0]
                 e1 = ee[1]
                 c0 = scene.bvh_nodes[ref].c0
@@ -747,36 +760,36 @@ def make_trace(F: Features) -> SimpleNamespace:
                 sc = scene.spheres[ii].c0
                 if wp.static(F.motion):
                     far_all = sphere_leaf_packet(sc, scene.spheres[ii].c1 - sc, 1, scene.spheres[ii].r, kk, ii, lanes,
-                                                 t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best,
-                                                 pk.kind, pk.index)
+                                                 t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.time, hits.best,
+                                                 hits.kind, hits.index)
                 else:
                     far_all = sphere_leaf_packet(sc, sc, 0, scene.spheres[ii].r, kk, ii, lanes, t_min, pk.ox, pk.oy,
-                                                 pk.oz, pk.dx, pk.dy, pk.dz, pk.time, pk.best, pk.kind, pk.index)
+                                                 pk.oz, pk.dx, pk.dy, pk.dz, pk.time, hits.best, hits.kind, hits.index)
                 continue
             if kk == KIND_RECT:
                 far_all = rect_leaf_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, kk, ii, lanes,
-                                           t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, pk.best, pk.kind, pk.index)
+                                           t_min, pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, hits.best, hits.kind, hits.index)
                 continue
             far_all = float(0.0)
             for k in range(lanes):
                 # (the lane's entries read in place: a copy of the vectors would wait for the
                 # last lane's stores, accel.lane)
-                lane_best = lane(pk.best, k)
-                kind = lane_i(pk.kind, k)
+                lane_best = lane(hits.best, k)
+                kind = lane_i(hits.kind, k)
                 # the tie rule of closest_hit's leaves
-                first = kind != KIND_NONE and (kk < kind or (kk == kind and ii < lane_i(pk.index, k)))
+                first = kind != KIND_NONE and (kk < kind or (kk == kind and ii < lane_i(hits.index, k)))
                 t_hi = lane_best
                 if first:
                     t_hi = lane_best * 1.0000002 + 1.0e-38
                 t = bounded_hit(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]), wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]),
                                 t_min, t_hi, pk.time[k], kk, ii)
                 if t >= 0.0 and (t < lane_best or (first and t == lane_best)):
-                    pk.best[k] = t
-                    pk.kind[k] = kk
-                    pk.index[k] = ii
+                    hits.best[k] = t
+                    hits.kind[k] = kk
+                    hits.index[k] = ii
                     lane_best = t
                 far_all = wp.max(far_all, lane_best)
-        return pk
+        return hits
 
     @wp.func(inline=True)
     def analytic_nearest(scene: SceneData, o: wp.vec3, d: wp.vec3, t_min: float, t_max: float,
