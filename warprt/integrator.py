@@ -42,7 +42,7 @@ from .sampling import (
     SAMPLER_SOBOL, frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, sobol_packet, square_to_cos_power,
 )
 from .shading import fresnel, mul_sat, reflect, refract
-from .accel import PacketU
+from .accel import PacketU, lane, lane_i
 from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketF, PacketI, make_trace
 
 STACK_SIZE = 16
@@ -331,13 +331,16 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     sp_.sample = idx
                     sp_.time = pk.time
                     for k in range(lanes):
-                        o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                        d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                        # (the lanes read in place: accel.lane)
+                        o = wp.vec3(lane(pk.ox, k), lane(pk.oy, k), lane(pk.oz, k))
+                        d = wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k))
                         h = Hit()
                         if mesh_packed:
-                            h = finish_packet_lane(scene, o, d, pk.time[k], pk.best[k], pk.kind[k], pk.index[k], mp, k)
+                            h = finish_packet_lane(scene, o, d, lane(pk.time, k), lane(pk.best, k), lane_i(pk.kind, k),
+                                                   lane_i(pk.index, k), mp, k)
                         else:
-                            h = finish_hit(scene, o, d, params.t_min, pk.time[k], pk.best[k], pk.kind[k], pk.index[k])
+                            h = finish_hit(scene, o, d, params.t_min, lane(pk.time, k), lane(pk.best, k),
+                                           lane_i(pk.kind, k), lane_i(pk.index, k))
                         l_rays[k] = 1
                         L = wp.vec3(0.0, 0.0, 0.0)
                         if h.kind == KIND_NONE:
@@ -390,10 +393,10 @@ def kernels_for(F: Features) -> SimpleNamespace:
                             pl = point_lights_packet(scene, sp_, lanes, lit)
                             for k in range(PACKET):
                                 if (lit >> k) & 1 != 0:
-                                    lr[k] = lr[k] + pl.r[k]
-                                    lg[k] = lg[k] + pl.g[k]
-                                    lb[k] = lb[k] + pl.b[k]
-                                    l_rays[k] += pl.rays[k]
+                                    lr[k] = lr[k] + lane(pl.r, k)
+                                    lg[k] = lg[k] + lane(pl.g, k)
+                                    lb[k] = lb[k] + lane(pl.b, k)
+                                    l_rays[k] += lane_i(pl.rays, k)
                         if wp.static(F.area_lights):
                             if scene.n_alights > 0:
                                 lp = area_lights_packet(scene, params, sp_, lanes, lit)
@@ -439,8 +442,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
                             if (lit >> k) & 1 != 0:
                                 # local = ambient + point lights, then + the area lights
                                 Ls = wp.vec3(0.0, 0.0, 0.0) + mul_sat(wp.vec3(1.0, 1.0, 1.0),
-                                                                      Ls + wp.vec3(lp.r[k], lp.g[k], lp.b[k]))
-                                rays += lp.rays[k]
+                                                                      Ls + wp.vec3(lane(lp.r, k), lane(lp.g, k),
+                                                                                   lane(lp.b, k)))
+                                rays += lane_i(lp.rays, k)
                             Ls = sanitize(Ls, params.clamp)
                             acc = acc + Ls
                             ys = luminance(Ls)
@@ -453,9 +457,9 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     first = RayEntry()
                     time = float(0.0)
                     if wp.static(packets):
-                        time = pk.time[k]
-                        first.o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                        first.d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
+                        time = lane(pk.time, k)
+                        first.o = wp.vec3(lane(pk.ox, k), lane(pk.oy, k), lane(pk.oz, k))
+                        first.d = wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k))
                     else:
                         cs = camera_sample(cam, params, pkey, s, px0 + cur, py)
                         time = cs.time
@@ -486,10 +490,12 @@ def kernels_for(F: Features) -> SimpleNamespace:
                             if e.depth == 0 and packed:
                                 # the packet found this camera ray's nearest analytic hit (and mesh hit)
                                 if mesh_packed:
-                                    h = finish_packet_lane(scene, e.o, e.d, time, pk.best[k], pk.kind[k], pk.index[k],
+                                    h = finish_packet_lane(scene, e.o, e.d, time, lane(pk.best, k), lane_i(pk.kind, k),
+                                                           lane_i(pk.index, k),
                                                            mp, k)
                                 else:
-                                    h = finish_hit(scene, e.o, e.d, t_lo, time, pk.best[k], pk.kind[k], pk.index[k])
+                                    h = finish_hit(scene, e.o, e.d, t_lo, time, lane(pk.best, k), lane_i(pk.kind, k),
+                                                   lane_i(pk.index, k))
                             else:
                                 h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                         else:

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import warp as wp
 
 from ._warp import build_once
-from .accel import PACKET, PacketF, PacketI, PacketU, lane, lane_add, lane_addi
+from .accel import PACKET, PacketF, PacketI, PacketU, lane, lane_add, lane_addi, lane_i
 from .geometry import max_abs, shadow_rays_packet, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, SceneData
 from .sampling import SAMPLER_SOBOL, hash2, is_rectangle_edges, sample_2d_keyed, sobol_packet
@@ -218,11 +218,11 @@ def lobe_packet(lanes: int, lx: PacketF, ly: PacketF, lz: PacketF, gx: PacketF, 
 def lobe_colour(sp: ShadePacket, k: int, nl: float, hl: float, nh: float) -> wp.vec3:
     """``blinn_phong``'s colour for lane k of a packet's shading points from its n·l, |l + v| and
     n·(l + v)/|l + v| (``lobe_packet``, ``point_light_packet``): the same operations."""
-    ks = wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k])
+    ks = wp.vec3(lane(sp.ksr, k), lane(sp.ksg, k), lane(sp.ksb, k))
     spec = float(0.0)
     if hl > 0.0 and wp.max(ks) > 0.0:
-        spec = phong_power(nh, sp.p_exp[k])
-    return wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]) * nl + ks * spec
+        spec = phong_power(nh, lane(sp.p_exp, k))
+    return wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)) * nl + ks * spec
 
 @build_once
 def make_lights(F: Features) -> SimpleNamespace:
@@ -378,11 +378,15 @@ def make_lights(F: Features) -> SimpleNamespace:
                         lane_add(out.b, k, L[2])
             for k in range(lanes):
                 if (scalar >> k) & 1 != 0:
-                    q = one_area_light(scene, params, j, sp.key[k], sp.sample[k], wp.uint32(ROOT_KEY),
-                                       wp.vec3(sp.px[k], sp.py[k], sp.pz[k]), wp.vec3(sp.ox[k], sp.oy[k], sp.oz[k]),
-                                       wp.vec3(sp.gx[k], sp.gy[k], sp.gz[k]), wp.vec3(sp.nx[k], sp.ny[k], sp.nz[k]),
-                                       wp.vec3(sp.vx[k], sp.vy[k], sp.vz[k]), wp.vec3(sp.kdr[k], sp.kdg[k], sp.kdb[k]),
-                                       wp.vec3(sp.ksr[k], sp.ksg[k], sp.ksb[k]), sp.p_exp[k], sp.time[k])
+                    q = one_area_light(scene, params, j, sp.key[k], lane_i(sp.sample, k), wp.uint32(ROOT_KEY),
+                                       wp.vec3(lane(sp.px, k), lane(sp.py, k), lane(sp.pz, k)),
+                                       wp.vec3(lane(sp.ox, k), lane(sp.oy, k), lane(sp.oz, k)),
+                                       wp.vec3(lane(sp.gx, k), lane(sp.gy, k), lane(sp.gz, k)),
+                                       wp.vec3(lane(sp.nx, k), lane(sp.ny, k), lane(sp.nz, k)),
+                                       wp.vec3(lane(sp.vx, k), lane(sp.vy, k), lane(sp.vz, k)),
+                                       wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)),
+                                       wp.vec3(lane(sp.ksr, k), lane(sp.ksg, k), lane(sp.ksb, k)), lane(sp.p_exp, k),
+                                       lane(sp.time, k))
                     lane_add(out.r, k, q[0])
                     lane_add(out.g, k, q[1])
                     lane_add(out.b, k, q[2])

@@ -536,9 +536,9 @@ def make_trace(F: Features) -> SimpleNamespace:
             mp.inst[k] = -1
             bound[k] = -1.0
         for k in range(lanes):
-            bound[k] = pk.best[k]
-            if pk.kind[k] != KIND_NONE:
-                bound[k] = pk.best[k] * (1.0 - TIE)
+            bound[k] = lane(pk.best, k)
+            if lane_i(pk.kind, k) != KIND_NONE:
+                bound[k] = lane(pk.best, k) * (1.0 - TIE)
         for i in range(scene.n_inst):
             ox = PacketF()
             oy = PacketF()
@@ -557,9 +557,9 @@ def make_trace(F: Features) -> SimpleNamespace:
                 continue
             for k in range(lanes):
                 if (inside >> k) & 1 != 0:
-                    o = wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k])
-                    d = wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k])
-                    pose = instance_pose(scene, i, pk.time[k])
+                    o = wp.vec3(lane(pk.ox, k), lane(pk.oy, k), lane(pk.oz, k))
+                    d = wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k))
+                    pose = instance_pose(scene, i, lane(pk.time, k))
                     so = to_object(pose, o + d * t_min)
                     sd = dir_to_object(pose, d)
                     ox[k] = so[0]
@@ -697,8 +697,9 @@ def make_trace(F: Features) -> SimpleNamespace:
                                      pk.ox, pk.oy, pk.oz, pk.dx, pk.dy, pk.dz, hits.best, hits.kind, hits.index)
                 return hits
             for k in range(lanes):
-                a = analytic_nearest(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]),
-                                     wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]), t_min, hits.best[k], pk.time[k])
+                a = analytic_nearest(scene, wp.vec3(lane(pk.ox, k), lane(pk.oy, k), lane(pk.oz, k)),
+                                     wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k)), t_min, lane(hits.best, k),
+                                     lane(pk.time, k))
                 hits.best[k] = a.t
                 hits.kind[k] = a.kind
                 hits.index[k] = a.index
@@ -707,7 +708,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         inv_y = PacketF()
         inv_z = PacketF()
         for k in range(lanes):
-            inv = safe_inverse(wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]))
+            inv = safe_inverse(wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k)))
             inv_x[k] = inv[0]
             inv_y[k] = inv[1]
             inv_z[k] = inv[2]
@@ -716,7 +717,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                               pk.dx, pk.dy, pk.dz, hits.best, hits.kind, hits.index)
         far_all = float(0.0)  # the farthest any lane still searches
         for k in range(PACKET):
-            far_all = wp.max(far_all, hits.best[k])
+            far_all = wp.max(far_all, lane(hits.best, k))
         refs = StackRefs()
         entry = StackDist()
         refs[0] = scene.bvh_root
@@ -781,8 +782,9 @@ def make_trace(F: Features) -> SimpleNamespace:
                 t_hi = lane_best
                 if first:
                     t_hi = lane_best * 1.0000002 + 1.0e-38
-                t = bounded_hit(scene, wp.vec3(pk.ox[k], pk.oy[k], pk.oz[k]), wp.vec3(pk.dx[k], pk.dy[k], pk.dz[k]),
-                                t_min, t_hi, pk.time[k], kk, ii)
+                t = bounded_hit(scene, wp.vec3(lane(pk.ox, k), lane(pk.oy, k), lane(pk.oz, k)),
+                                wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k)),
+                                t_min, t_hi, lane(pk.time, k), kk, ii)
                 if t >= 0.0 and (t < lane_best or (first and t == lane_best)):
                     hits.best[k] = t
                     hits.kind[k] = kk
@@ -932,11 +934,11 @@ def make_trace(F: Features) -> SimpleNamespace:
                            kind_analytic: int, index_analytic: int, mp: MeshPacket, k: int) -> Hit:
         """``finish_hit`` for lane k of a camera packet whose mesh hits ``mesh_packet`` found."""
         m = MeshHit()
-        m.index = mp.inst[k]
-        m.t = mp.t[k]
-        m.face = mp.face[k]
-        m.u = mp.u[k]
-        m.v = mp.v[k]
+        m.index = lane_i(mp.inst, k)
+        m.t = lane(mp.t, k)
+        m.face = lane_i(mp.face, k)
+        m.u = lane(mp.u, k)
+        m.v = lane(mp.v, k)
         return nearer_hit(scene, o, d, time, best_analytic, kind_analytic, index_analytic, m)
 
     @wp.func(inline=True)
