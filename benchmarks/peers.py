@@ -26,11 +26,10 @@ Method (details in docs/benchmarks.md, "Side by side with Mitsuba 3"):
    (scene, sampler, spp) so kernel compile and JIT are excluded, repeats interleaved between the
    renderers (each timed render after ``SETTLE_S`` idle, so that neither renderer's idle threads
    share the cores with the other's render), the minimum wall time of the repeats (process CPU
-   time too), the mean error of the
-   warm-up and the repeats less the reference's own noise. Time to relative MSE 1e-2 and 1e-3
-   is interpolated (log-log) for each renderer's best sampler. From 64 spp on, a curve stops
-   once each target is reached, or lost to another sampler of the same renderer
-   (``--full-curves`` runs them all to the end).
+   time too), the mean error of the warm-up and the repeats less the reference's own noise.
+   Time to relative MSE 1e-2 and 1e-3 is interpolated (log-log) for each renderer's best
+   sampler. From 64 spp on, a curve stops once each target is reached, or lost to another
+   sampler of the same renderer (``--full-curves`` runs them all to the end).
 
 Writes peers.json (every number), peers.png (error against time, one panel per scene) and
 peers.md (the summary table) under docs/benchmarks/ (``--quick``: under out/peers/), and with a

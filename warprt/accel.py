@@ -527,12 +527,17 @@ _SHEAR = r"""
     const float ok[3] = {ox, oy, oz};
     const float okx = ok[kx], oky = ok[ky], okz = ok[kz];
 """
+_PREFETCH = r"""
+        // the children's data fetched while this node's boxes are tested (children k0, k1 of node)
+        if (k0 >= 0) { __builtin_prefetch(N + 12 * k0); __builtin_prefetch(C + 2 * k0); }
+        else { __builtin_prefetch(TR + 9 * (-k0 - 1)); __builtin_prefetch(TR + 9 * (-k0 - 1) + 8); }
+        if (k1 >= 0) { __builtin_prefetch(N + 12 * k1); __builtin_prefetch(C + 2 * k1); }
+        else { __builtin_prefetch(TR + 9 * (-k1 - 1)); __builtin_prefetch(TR + 9 * (-k1 - 1) + 8); }
+"""
 _NODE_BOXES = r"""
         const float* nd = N + 12 * node;
         int k0 = C[2 * node], k1 = C[2 * node + 1];
-        // the children's data fetched while this node's boxes are tested
-        if (k0 >= 0) { __builtin_prefetch(N + 12 * k0); __builtin_prefetch(C + 2 * k0); } else { __builtin_prefetch(TR + 9 * (-k0 - 1)); __builtin_prefetch(TR + 9 * (-k0 - 1) + 8); }
-        if (k1 >= 0) { __builtin_prefetch(N + 12 * k1); __builtin_prefetch(C + 2 * k1); } else { __builtin_prefetch(TR + 9 * (-k1 - 1)); __builtin_prefetch(TR + 9 * (-k1 - 1) + 8); }
+@PREFETCH@
         float a0 = (nd[0] - ox) * ix, b0 = (nd[3] - ox) * ix;
         float a1 = (nd[1] - oy) * iy, b1 = (nd[4] - oy) * iy;
         float a2 = (nd[2] - oz) * iz, b2 = (nd[5] - oz) * iz;
@@ -547,9 +552,10 @@ _NODE_BOXES = r"""
 
 
 def _splice(snippet: str) -> str:
-    """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``) in place."""
+    """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
+    ``_PREFETCH``, ``_LEAST8``) in place."""
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
-                       ("LEAST8", _LEAST8)):
+                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -744,9 +750,7 @@ if (nodes != 0) {
     while (far_all >= 0.0f) {
         const float* nd = N + 12 * node;
         const int k0 = C[2 * node], k1 = C[2 * node + 1];
-        // the children's data fetched while this node's boxes are tested
-        if (k0 >= 0) { __builtin_prefetch(N + 12 * k0); __builtin_prefetch(C + 2 * k0); } else { __builtin_prefetch(TR + 9 * (-k0 - 1)); __builtin_prefetch(TR + 9 * (-k0 - 1) + 8); }
-        if (k1 >= 0) { __builtin_prefetch(N + 12 * k1); __builtin_prefetch(C + 2 * k1); } else { __builtin_prefetch(TR + 9 * (-k1 - 1)); __builtin_prefetch(TR + 9 * (-k1 - 1) + 8); }
+@PREFETCH@
         float e[2];
         unsigned m[2];
         for (int c = 0; c < 2; ++c) {

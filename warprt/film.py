@@ -206,6 +206,9 @@ def _pilot_stats(film: Film, n: int) -> tuple[np.ndarray, np.ndarray]:
     return y, var
 
 
+ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
+
+
 def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     """Integers within 1 of x (>= 0) whose sum is round(Σ x): the floors, plus one for the largest
     fractional parts (ties to the lower index), so that a small budget keeps its mean."""
@@ -227,8 +230,6 @@ def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
         base[in_b[np.lexsort((in_b, -f[in_b]))[:rest]]] += 1.0
     return base.astype(np.int32)
 
-
-ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
 
 
 def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:

@@ -122,15 +122,22 @@ def intersect_plane(o: wp.vec3, d: wp.vec3, p0: wp.vec3, n: wp.vec3, t_min: floa
 
 
 
-# The start of a packet's ray test on the CPU: its lanes' origins, directions and lengths loaded as
-# clang vectors (spliced into the snippets below; the compiled C++ is the same as written out).
-_PACKET_RAYS = r"""#if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef float v8 __attribute__((ext_vector_type(8)));
+# The start of a packet's ray test on the CPU: its lanes' origins and directions loaded as clang
+# vectors (``_LOAD_RAYS``), and with their lengths (``_PACKET_RAYS``, from the ``#if`` on); spliced
+# into the snippets below, the compiled C++ the same as written out. ``_VMIN_VMAX``: Warp's CPU
+# fmin / fmax lane by lane.
+_LOAD_RAYS = r"""typedef float v8 __attribute__((ext_vector_type(8)));
 typedef int i8 __attribute__((ext_vector_type(8)));
-v8 Ox, Oy, Oz, Dx, Dy, Dz, Tm;
+v8 Ox, Oy, Oz, Dx, Dy, Dz;
 __builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
 __builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+"""
+_PACKET_RAYS = r"""#if defined(__clang__) && !defined(__CUDA_ARCH__)
+""" + _LOAD_RAYS + r"""v8 Tm;
 __builtin_memcpy(&Tm, &t_max, 32);"""
+_VMIN_VMAX = r"""auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
+auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
+"""
 
 
 
@@ -188,15 +195,9 @@ const v8 lo = miss ? (v8)(-1.0e38f) : vmin(t0, t1), hi = miss ? (v8)(-1.0e38f) :
 _SPHERE_LEAF_PACKET = (r"""
 float far = 0.0f;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef float v8 __attribute__((ext_vector_type(8)));
-typedef int i8 __attribute__((ext_vector_type(8)));
-v8 Ox, Oy, Oz, Dx, Dy, Dz, Tt;
-__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
-__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+""" + _LOAD_RAYS + r"""v8 Tt;
 __builtin_memcpy(&Tt, &time, 32);
-auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
-auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
-""" + _LEAF_UPDATE + r"""
+""" + _VMIN_VMAX + _LEAF_UPDATE + r"""
 @SPHERE_ROOTS@
 const v8 t = ((lo > t_min) & (lo < hi_t)) ? lo : (((hi > t_min) & (hi < hi_t)) ? hi : (v8)(-1.0f));
 """ + _LEAF_STORE + r"""
@@ -236,12 +237,7 @@ float far = 0.0f;
 const float n0 = e1[1] * e2[2] - e1[2] * e2[1], n1 = e1[2] * e2[0] - e1[0] * e2[2], n2 = e1[0] * e2[1] - e1[1] * e2[0];
 const float nn = (n0 * n0 + n1 * n1) + n2 * n2;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef float v8 __attribute__((ext_vector_type(8)));
-typedef int i8 __attribute__((ext_vector_type(8)));
-v8 Ox, Oy, Oz, Dx, Dy, Dz;
-__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
-__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
-""" + _LEAF_UPDATE + r"""
+""" + _LOAD_RAYS + _LEAF_UPDATE + r"""
 const v8 denom = (n0 * Dx + n1 * Dy) + n2 * Dz;
 const v8 tp = ((n0 * (c[0] - Ox) + n1 * (c[1] - Oy)) + n2 * (c[2] - Oz)) / denom;
 const v8 rx = (Ox + tp * Dx) - c[0], ry = (Oy + tp * Dy) - c[1], rz = (Oz + tp * Dz) - c[2];
@@ -284,12 +280,7 @@ def rect_leaf_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, kk: int, ii: int, n: 
 _PLANE_LEAF_PACKET = (r"""
 float far = 0.0f;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef float v8 __attribute__((ext_vector_type(8)));
-typedef int i8 __attribute__((ext_vector_type(8)));
-v8 Ox, Oy, Oz, Dx, Dy, Dz;
-__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
-__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
-""" + _LEAF_UPDATE + r"""
+""" + _LOAD_RAYS + _LEAF_UPDATE + r"""
 const v8 denom = (pn[0] * Dx + pn[1] * Dy) + pn[2] * Dz;
 const v8 tp = ((pn[0] * (p0[0] - Ox) + pn[1] * (p0[1] - Oy)) + pn[2] * (p0[2] - Oz)) / denom;
 const v8 t = ((denom != 0.0f) & (tp > t_min) & (tp < hi_t)) ? tp : (v8)(-1.0f);
@@ -322,16 +313,10 @@ def plane_leaf_packet(p0: wp.vec3, pn: wp.vec3, kk: int, ii: int, n: int, t_min:
 _SPHERE_HITS_PACKET = r"""
 int res = 0;
 if (!(r <= 0.0f)) {
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef float v8 __attribute__((ext_vector_type(8)));
-typedef int i8 __attribute__((ext_vector_type(8)));
-v8 Ox, Oy, Oz, Dx, Dy, Dz, Tm, Tt;
-__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
-__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
-__builtin_memcpy(&Tm, &t_max, 32); __builtin_memcpy(&Tt, &time, 32);
-auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
-auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
-@SPHERE_ROOTS@
+@PACKET_RAYS@
+v8 Tt;
+__builtin_memcpy(&Tt, &time, 32);
+@VMIN_VMAX@@SPHERE_ROOTS@
 const i8 hit = ((lo > 0.0f) & (lo < Tm)) | ((hi > 0.0f) & (hi < Tm));
 for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && hit[l] ? 1 << l : 0;
 #else
@@ -353,7 +338,8 @@ for (int l = 0; l < 8; ++l) {
 #endif
 }
 return res;
-""".replace("@SPHERE_ROOTS@", _SPHERE_ROOTS)
+""".replace("@PACKET_RAYS@\n", _PACKET_RAYS + "\n").replace("@VMIN_VMAX@", _VMIN_VMAX).replace(
+    "@SPHERE_ROOTS@", _SPHERE_ROOTS)
 
 
 @wp.func_native(_SPHERE_HITS_PACKET)
