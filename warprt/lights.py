@@ -278,7 +278,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             rays += int(a[3])
         return wp.vec4(L[0], L[1], L[2], float(rays))
 
-    @wp.func
+    @wp.func(inline=True)
     def area_lights_packet(scene: SceneData, params: RenderParams, sp: ShadePacket, lanes: int,
                            live: int) -> LightPacket:
         """``area_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes``

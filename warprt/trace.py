@@ -148,18 +148,6 @@ def normal_to_world(pose: Pose, n: wp.vec3) -> wp.vec3:
     return wp.quat_rotate(pose.rot, wp.cw_div(n, pose.scl))
 
 
-@wp.func(inline=True)
-def on_plane(h_in: Hit, p: wp.vec3, p0: wp.vec3, n: wp.vec3, mat: int) -> Hit:
-    """h_in with its point refined onto the plane through p0 of unit normal n (a plane, rectangle
-    or disk), that normal as both normals, and the material; ``mag`` is the caller's."""
-    h = h_in
-    h.p = refine_on_plane(p, p0, n)
-    h.ng = n
-    h.ns = n
-    h.mat = mat
-    return h
-
-
 @wp.func
 def turned_extent(q: wp.quat, e: wp.vec3) -> wp.vec3:
     """Half extents of the world box around a box of half extents e turned by q."""
@@ -607,16 +595,18 @@ def make_trace(F: Features) -> SimpleNamespace:
         return mp
 
     @wp.func
-    def mesh_details(scene: SceneData, h_in: Hit, o: wp.vec3, d: wp.vec3, face: int, bu: float, bv: float,
-                     time: float) -> Hit:
-        """h_in with the point, normals and material of its mesh hit filled in.
+    def mesh_details(scene: SceneData, index: int, t: float, o: wp.vec3, d: wp.vec3, face: int, bu: float,
+                     bv: float, time: float) -> Hit:
+        """The hit of instance ``index``'s triangle ``face`` at t with its point, normals and material.
 
         The point is taken, in object space, from the barycentrics or from the ray's crossing of
         the triangle's plane, whichever was computed from smaller coordinates (the barycentric
         point of a triangle 1e4 wide is off by ~1e-3 along the surface; the ray point seen from a
         far camera likewise), and then projected onto that plane."""
-        h = h_in
-        index = h.index
+        h = Hit()
+        h.t = t
+        h.kind = KIND_MESH
+        h.index = index
         mid = scene.insts[index].mesh
         pose = instance_pose(scene, index, time)
         mesh = wp.mesh_get(mid)
@@ -983,19 +973,31 @@ def make_trace(F: Features) -> SimpleNamespace:
             h.mag = abs3(c) + abs3(h.ng) * r  # the centre, and the radius along each axis
             h.mat = scene.spheres[index].mat
         elif kind == KIND_PLANE:
-            h = on_plane(h, p, scene.planes[index].p, scene.planes[index].n, scene.planes[index].mat)
+            # (the planar kinds' fields written in place: a Hit passed by value to a function is
+            # copied in 8-byte words, and the copy's first word, t and kind stored apart just
+            # above, waited for both stores to complete)
+            h.p = refine_on_plane(p, scene.planes[index].p, scene.planes[index].n)
+            h.ng = scene.planes[index].n
+            h.ns = h.ng
+            h.mat = scene.planes[index].mat
             h.mag = wp.max(abs3(h.p), abs3(scene.planes[index].p))
         elif kind == KIND_RECT:
             rect = scene.rects[index]
-            h = on_plane(h, p, rect.c, rect.n, rect.mat)
+            h.p = refine_on_plane(p, rect.c, rect.n)
+            h.ng = rect.n
+            h.ns = rect.n
+            h.mat = rect.mat
             h.mag = abs3(rect.c) + abs3(rect.e1) + abs3(rect.e2)
         elif kind == KIND_DISK:
             disk = scene.disks[index]
-            h = on_plane(h, p, disk.c, disk.n, disk.mat)
+            h.p = refine_on_plane(p, disk.c, disk.n)
+            h.ng = disk.n
+            h.ns = disk.n
+            h.mat = disk.mat
             h.mag = abs3(disk.c) + disk_extent(disk.n, disk.r)
         if wp.static(F.meshes):
             if kind == KIND_MESH:
-                h = mesh_details(scene, h, o, d, face, bu, bv, time)
+                return mesh_details(scene, index, best, o, d, face, bu, bv, time)
         if wp.static(F.solids):
             if kind >= KIND_BOX:
                 h = solid_details(solid_rec(scene, kind, index), h, o, d, time)
