@@ -65,7 +65,7 @@ from warprt.testing import relative_mse  # noqa: E402
 THREADS = 2
 TARGETS = (1e-2, 1e-3)
 # +adaptive: Renderer.render(adaptive=True); +split: the area lights with samples = "auto" (the
-# renderer picks the shadow rays per camera sample from the variance split, warprt.splitting)
+# renderer picks the shadow rays per camera sample from the error split, warprt.splitting)
 WARPRT_SAMPLERS = ("sobol", "stratified", "sobol+adaptive", "sobol+split", "sobol+split+adaptive")
 MITSUBA_SAMPLERS = ("multijitter", "independent")
 # Mitsuba with warprt's light-sample split (emitter_samples = the N warprt's samples = "auto" chose),

@@ -17,25 +17,52 @@ from warprt.scene.loader import scene_from_string as load_scene
 
 
 def test_the_split_is_recovered_from_the_two_pilots():
-    # per pixel: V_cam + V_light with one light sample, V_cam + V_light / P with P
+    # the pilots' errors: E_cam + E_light with one light sample, E_cam + E_light P^-rate with P
     rng = np.random.default_rng(0)
-    v_cam, v_light = rng.uniform(0, 1, 500), rng.uniform(0, 3, 500)
     p = splitting.PROBE
-    got = splitting.variance_split(v_cam + v_light, v_cam + v_light / p)
-    assert got == pytest.approx((v_cam.sum(), v_light.sum()), rel=1e-12)
+    for rate in (1.0, splitting.RATE):
+        e_cam, e_light = rng.uniform(0, 1), rng.uniform(0, 3)
+        got = splitting.error_split(e_cam + e_light, e_cam + e_light * p ** -rate, rate=rate)
+        assert got == pytest.approx((e_cam, e_light), rel=1e-12)
     # noise in the estimates never makes either part negative
-    assert splitting.variance_split(np.ones(3), 2 * np.ones(3)) == (3.0, 0.0)
-    assert splitting.variance_split(np.ones(3), np.zeros(3)) == (0.0, 3.0 * p / (p - 1))
+    assert splitting.error_split(1.0, 2.0) == (1.0, 0.0)
+    assert splitting.error_split(1.0, 0.0, rate=1.0) == (0.0, p / (p - 1))
+    # a pixel mean's error from two independent renders: Var(a - b) / 2, summed over the pixels
+    a, b = rng.normal(size=(2, 4000))
+    assert splitting.pixel_error(a, b) == pytest.approx(float(np.sum((a - b) ** 2)) / 2, rel=1e-12)
+    assert splitting.pixel_error(a, a) == 0.0
+
+
+def _least_error_at_equal_cost(e_cam, e_light, cost_ratio, rate):
+    """The power of two of the least (1 + N / cost_ratio)^rate (e_cam + e_light N^-rate), found
+    over a fine grid of real N first and then among the two powers of two around it."""
+    grid = np.exp(np.linspace(0.0, np.log(splitting.MAX_SAMPLES), 20001))
+    f = lambda n: (1.0 + n / cost_ratio) ** rate * (e_cam + e_light * n ** -rate)
+    n_real = grid[np.argmin(f(grid))]
+    lo = 2 ** int(np.floor(np.log2(n_real)))
+    hi = min(2 * lo, splitting.MAX_SAMPLES)
+    return lo if f(lo) <= f(hi) else hi
 
 
 @pytest.mark.parametrize("ratio, expected", [(0.0, 1), (0.5, 1), (1.0, 1), (3.9, 2), (4.0, 2), (16.0, 4),
                                              (45.0, 8), (64.0, 8), (1e6, splitting.MAX_SAMPLES)])
-def test_the_best_count_is_the_nearest_power_of_two_to_the_square_root(ratio, expected):
-    assert splitting.best_samples(1.0, ratio) == expected
+def test_independent_samples_take_the_square_root_rule(ratio, expected):
+    # rate 1 and equal costs: (1 + N)(1 + R / N) is least at N = sqrt(R)
+    assert splitting.best_samples(1.0, ratio, cost_ratio=1.0, rate=1.0) == expected
     # with two "auto" lights a unit of N costs two light samples
-    assert splitting.best_samples(1.0, 2.0 * ratio, n_lights=2) == expected
+    assert splitting.best_samples(1.0, 2.0 * ratio, n_lights=2, cost_ratio=2.0, rate=1.0) == expected
     assert splitting.best_samples(0.0, 1.0) == splitting.MAX_SAMPLES
     assert splitting.best_samples(1.0, 0.0) == 1
+
+
+@pytest.mark.parametrize("ratio", [0.3, 1.0, 2.0, 5.0, 8.8, 15.7, 40.0, 200.0, 1e4])
+def test_stratified_samples_take_the_least_error_at_equal_cost(ratio):
+    """With a stratifying sampler both parts fall as samples^-1.5: the count is the power of two
+    of least error at equal cost, found here by brute force over real N."""
+    for cost_ratio in (1.0, splitting.COST_RATIO, 5.0):
+        want = _least_error_at_equal_cost(1.0, ratio, cost_ratio, splitting.RATE)
+        assert splitting.best_samples(1.0, ratio, cost_ratio=cost_ratio) == want
+        assert splitting.best_samples(2.0, 2.0 * ratio, n_lights=2, cost_ratio=2.0 * cost_ratio) == want
 
 
 def _penumbra_scene(samples, aperture=0.0, width=48, height=32):
@@ -54,10 +81,13 @@ def test_auto_follows_where_the_noise_is(device):
     """A big light close over a sphere: the noise is the penumbra's, so auto takes several shadow
     rays per camera sample; the same light seen through a wide defocused lens, whose blur is the
     noise, gets fewer."""
-    sharp = warprt.Renderer(_penumbra_scene("auto"), device=device)
+    # (96 × 64 pixels: at 48 × 32 a pixel's footprint holds enough of the penumbra's detail that
+    # its camera samples' part is a fifth of the noise, and auto takes 2)
+    sharp = warprt.Renderer(_penumbra_scene("auto", width=96, height=64), device=device)
     # (the all-features kernel, which the suite compiles anyway: the pilot's images, and so the
     # choice, are the same bit for bit with any kernel)
-    blurred = warprt.Renderer(_penumbra_scene("auto", aperture=0.6), device=device, features=warprt.Features.full())
+    blurred = warprt.Renderer(_penumbra_scene("auto", aperture=0.6, width=96, height=64), device=device,
+                              features=warprt.Features.full())
     n_sharp, n_blur = sharp.light_samples(), blurred.light_samples()
     assert n_sharp >= 4 and n_blur < n_sharp
     # without "auto" there is nothing to choose

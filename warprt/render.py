@@ -281,20 +281,25 @@ class Renderer:
             rows = list(range(first, cam.height, step))
             count = max(1, min(len(rows), SLICES_PER_WORKER * workers)) if self.device.is_cpu else 1
             run = pixels_per_thread(self.device, cam.width)
-            params = render_params(self.scene, splitting.PILOT_SPP, splitting.PILOT_SEED, self.built.features)
-            variances = []
+            pilot_pixels = np.concatenate([np.arange(r * cam.width, (r + 1) * cam.width) for r in rows])
+            errors = []
             for n in (1, splitting.PROBE):
                 self.built.set_auto_light_samples(n)
-                film = Film(cam.width, cam.height, self.device)
-                launches = [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run, device=self.device,
-                                      record_cmd=True, inputs=[self.built.data, self.built.camera, params, rows[j],
-                                                               step * count, 0, 0, film.data, run])
-                            for j in range(count)]
-                run_pass(self._pool.get(workers), launches, workers, 0, splitting.PILOT_SPP)
-                wp.synchronize_device(self.device)
-                variances.append(film.luminance_stats(splitting.PILOT_SPP)[1])
-            v_cam, v_light = splitting.variance_split(*variances)
-            self._light_samples = splitting.best_samples(v_cam, v_light, self.built.auto_lights)
+                means = []
+                for seed in splitting.PILOT_SEEDS:
+                    params = render_params(self.scene, splitting.PILOT_SPP, seed, self.built.features)
+                    film = Film(cam.width, cam.height, self.device)
+                    launches = [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run, device=self.device,
+                                          record_cmd=True, inputs=[self.built.data, self.built.camera, params, rows[j],
+                                                                   step * count, 0, 0, film.data, run])
+                                for j in range(count)]
+                    run_pass(self._pool.get(workers), launches, workers, 0, splitting.PILOT_SPP)
+                    wp.synchronize_device(self.device)
+                    means.append(film.luminance_stats(splitting.PILOT_SPP)[0][pilot_pixels])
+                errors.append(splitting.pixel_error(*means))
+            rate = 1.0 if self.scene.render.sampler == "independent" else splitting.RATE
+            e_cam, e_light = splitting.error_split(*errors, rate=rate)
+            self._light_samples = splitting.best_samples(e_cam, e_light, self.built.auto_lights, rate=rate)
         self.built.set_auto_light_samples(self._light_samples)
         return self._light_samples
 

@@ -1,43 +1,54 @@
 """Splitting: how many shadow rays an area light with ``samples = "auto"`` takes per camera sample.
 
 A pixel's estimate has two kinds of noise: where its camera samples land (the pixel footprint,
-the lens, the time) and where on the lights their shadow rays go. With N light samples per
-camera sample and n camera samples, the variance of a pixel's mean is
+the lens, the time) and where on the lights their shadow rays go. With n camera samples of N
+light samples each, a stratifying sampler (``sobol``, ``stratified``, ``regular``) makes the
+error of a pixel's mean fall as a power RATE ≈ 1.5 of its samples, for both parts: the camera
+samples are a stratified set of n, and the light samples a stratified run of n·N. So
 
-    (V_cam + V_light / N) / n            for a cost of  n (C_cam + N C_light),
+    error ≈ n^-RATE (E_cam + E_light · N^-RATE)        for a cost of  n (C_cam + N C_light),
 
-and the N that minimises variance × cost is sqrt((V_light / V_cam) · (C_cam / C_light)) (set the
-derivative of (V_cam + V_light / N)(C_cam + N C_light) in N to zero).
-The renderer measures V_light and V_cam with a pilot: every ``PILOT_ROW_STEP``-th row at
-``PILOT_SPP`` camera samples, rendered once with 1 and once with ``PROBE`` light samples per
-camera sample, the same camera samples in both (one seed). Per pixel the sample variance of the
-luminance is V_cam + V_light in the first and V_cam + V_light / PROBE in the second, which gives
-both parts summed over the pixels (the sum is what the image's mean squared error adds up).
+and at a given cost (n = T / (C_cam + N C_light)) the error is proportional to
+
+    (1 + N C_light / C_cam)^RATE (E_cam + E_light · N^-RATE),
+
+which the renderer evaluates for N = 1, 2, 4, ..., MAX_SAMPLES and takes the least of (N a power
+of two: a camera sample's light samples are then a stratified run of the sampler's sequence).
+With the ``independent`` sampler RATE is 1, and the least is the classical
+N = sqrt(E_light / E_cam · C_cam / C_light).
+
+E_cam and E_light are measured, not modelled, by a pilot: every ``PILOT_ROW_STEP``-th row at
+``PILOT_SPP`` camera samples, rendered with 1 and with ``PROBE`` light samples per camera sample,
+each twice with two fixed seeds. The squared difference of a pixel's two means, halved, is the
+error of one mean (the seeds' scrambles are independent); summed over the pixels it is what the
+image's mean squared error adds up: E(1) = E_cam + E_light and E(PROBE) = E_cam + E_light ·
+PROBE^-RATE. (An earlier pilot split the per-sample variances instead, as for independent
+samples: the camera's variance inside a pixel is what stratification removes best, so it
+overstated E_light / E_cam and chose 8 and 16 shadow rays where 2 to 4 reach a given error
+soonest: docs/benchmarks.md, levers.)
 
 The cost ratio is a constant, not a timing, so the same scene always gets the same N and the
-same seed the same image: a camera sample (camera ray, hit, shading, film) cost about as much as
-one more light sample (the light draw and its shadow ray) on the peer benchmark's mesh scenes
-(1 worker, CPU s at 8 spp for N = 1, 2, 4, 8: 0.28, 0.42, 0.70, 1.24 s on the penumbrae; 0.60,
-0.89, 1.46, 2.56 s on the 328k-triangle mesh: C_cam / C_light = 1.0 and 1.1). With several
-"auto" lights each takes N, and a unit of N costs one light sample per such light.
+same seed the same image: one more light sample (the light draw and its shadow ray) costs about
+half a camera sample (camera ray, hit, shading, film) on the peer benchmark's mesh scenes (2
+workers, wall ms at 8 spp for N = 1, 2, 4, 8: 78, 89, 146, 250 on the penumbrae; 167, 207, 331
+for N = 1, 2, 4 on the 328k-triangle mesh: C_cam / C_light = 2.2 and 2.1). With several "auto"
+lights each takes N, and a unit of N costs one light sample per such light.
 
-N is rounded to a power of two (the light samples of a camera sample are then a stratified run of
-the sampler's sequence) and kept within [1, MAX_SAMPLES]. The choice is made once per renderer
-(the split is the scene's, not the render's) and is independent of the seed, spp and workers.
+The choice is made once per renderer (the split is the scene's, not the render's) and is
+independent of the seed, spp and workers.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
 PILOT_SPP = 4  # camera samples per pixel of the pilot
 PILOT_ROW_STEP = 8  # the pilot renders every 8th row (at least 16 rows: smaller steps on small images)
-PROBE = 8  # light samples per camera sample in the pilot's second render
+PROBE = 8  # light samples per camera sample in the pilot's second pair of renders
 MAX_SAMPLES = 16  # the most shadow rays per camera sample "auto" gives
-COST_RATIO = 1.0  # cost of a camera sample / cost of one light sample (measured, see above)
-PILOT_SEED = 0x5EED5  # the pilot's fixed seed: the choice does not depend on the render's
+COST_RATIO = 2.1  # cost of a camera sample / cost of one light sample (measured, see above)
+PILOT_SEEDS = (0x5EED5, 0x5EED6)  # the pilot's fixed seeds: the choice does not depend on the render's
+RATE = 1.5  # a stratifying sampler's error of a mean falls as (samples)^-RATE (1 for independent)
 
 
 def pilot_rows(height: int) -> tuple[int, int]:
@@ -46,24 +57,36 @@ def pilot_rows(height: int) -> tuple[int, int]:
     return step // 2, step
 
 
-def variance_split(var_one: np.ndarray, var_probe: np.ndarray, probe: int = PROBE) -> tuple[float, float]:
-    """(V_cam, V_light) summed over pixels, from per-pixel sample variances with 1 and ``probe``
-    light samples per camera sample (the same camera samples); negative estimates clipped to 0."""
-    one = float(np.sum(var_one, dtype=np.float64))
-    many = float(np.sum(var_probe, dtype=np.float64))
-    v_light = max(one - many, 0.0) * probe / (probe - 1)
-    v_cam = max(one - v_light, 0.0)
-    return v_cam, v_light
+def pixel_error(mean_a: np.ndarray, mean_b: np.ndarray) -> float:
+    """The error (variance) of one pixel mean summed over pixels, from two independent renders'
+    means of the same pixels: Var(a - b) = 2 Var(a)."""
+    d = np.asarray(mean_a, dtype=np.float64) - np.asarray(mean_b, dtype=np.float64)
+    return float(np.sum(d * d)) / 2.0
 
 
-def best_samples(v_cam: float, v_light: float, n_lights: int = 1, cost_ratio: float = COST_RATIO) -> int:
-    """The power of two nearest (in log) to sqrt(V_light / V_cam · C_cam / C_light), in
-    [1, MAX_SAMPLES]; C_light is ``n_lights`` light samples (one per "auto" light)."""
-    if not (v_light > 0.0):
+def error_split(e_one: float, e_probe: float, probe: int = PROBE, rate: float = RATE) -> tuple[float, float]:
+    """(E_cam, E_light) from the errors with 1 and ``probe`` light samples per camera sample
+    (the same camera samples); negative estimates clipped to 0."""
+    e_light = max(e_one - e_probe, 0.0) / (1.0 - probe ** -rate)
+    e_cam = max(e_one - e_light, 0.0)
+    return e_cam, e_light
+
+
+def best_samples(e_cam: float, e_light: float, n_lights: int = 1, cost_ratio: float = COST_RATIO,
+                 rate: float = RATE) -> int:
+    """The power of two N in [1, MAX_SAMPLES] whose error at a given cost,
+    (1 + N · n_lights / cost_ratio)^rate (e_cam + e_light N^-rate), is least (the smaller N on a
+    tie); a light sample costs ``n_lights`` light samples (one per "auto" light)."""
+    if not (e_light > 0.0):
         return 1
-    if not (v_cam > 0.0):
+    if not (e_cam > 0.0):
         return MAX_SAMPLES
-    n = math.sqrt(v_light / v_cam * cost_ratio / max(n_lights, 1))
-    if n <= 1.0:
-        return 1
-    return int(min(MAX_SAMPLES, 2 ** round(math.log2(n))))
+    rho = max(n_lights, 1) / cost_ratio
+    best, best_cost = 1, float("inf")
+    n = 1
+    while n <= MAX_SAMPLES:
+        cost = (1.0 + n * rho) ** rate * (e_cam + e_light * n ** -rate)
+        if cost < best_cost:
+            best, best_cost = n, cost
+        n *= 2
+    return best
