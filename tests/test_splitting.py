@@ -135,3 +135,10 @@ samples = "auto"
     with pytest.raises(warprt.SceneError, match="samples"):
         load_scene(text.replace('"auto"', "0"))
     assert dataclasses.replace(scene.lights[0], samples=4).samples == 4
+
+
+def test_the_regular_grid_has_no_error_to_split(device):
+    """The regular sampler's points do not move with the seed: the pilot's two seeds agree, so
+    there is no error to split and auto takes one shadow ray."""
+    sc = _penumbra_scene("auto", width=96, height=64).with_settings(sampler="regular")
+    assert warprt.Renderer(sc, device=device, features=warprt.Features.full()).light_samples() == 1

@@ -22,10 +22,11 @@ E_cam and E_light are measured, not modelled, by a pilot: every ``PILOT_ROW_STEP
 each twice with two fixed seeds. The squared difference of a pixel's two means, halved, is the
 error of one mean (the seeds' scrambles are independent); summed over the pixels it is what the
 image's mean squared error adds up: E(1) = E_cam + E_light and E(PROBE) = E_cam + E_light ·
-PROBE^-RATE. (An earlier pilot split the per-sample variances instead, as for independent
-samples: the camera's variance inside a pixel is what stratification removes best, so it
-overstated E_light / E_cam and chose 8 and 16 shadow rays where 2 to 4 reach a given error
-soonest: docs/benchmarks.md, levers.)
+PROBE^-RATE. The ``regular`` sampler's points move with no seed: its two renders agree, there
+is no error to split, and N is 1. (An earlier pilot split the per-sample variances instead, as
+for independent samples: the camera's variance inside a pixel is what stratification removes
+best, so it overstated E_light / E_cam and chose 8 and 16 shadow rays where 2 to 4 reach a given
+error soonest: docs/benchmarks.md, levers.)
 
 The cost ratio is a constant, not a timing, so the same scene always gets the same N and the
 same seed the same image: one more light sample (the light draw and its shadow ray) costs about
