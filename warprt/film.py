@@ -231,7 +231,6 @@ def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     return base.astype(np.int32)
 
 
-
 def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:
     """Σ over ADAPTIVE_NEIGHBOURS of weight × v (flat per-pixel values; 0 outside the image)."""
     pad = np.pad(v.reshape(h, w), 2)

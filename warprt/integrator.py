@@ -491,8 +491,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                                 # the packet found this camera ray's nearest analytic hit (and mesh hit)
                                 if mesh_packed:
                                     h = finish_packet_lane(scene, e.o, e.d, time, lane(pk.best, k), lane_i(pk.kind, k),
-                                                           lane_i(pk.index, k),
-                                                           mp, k)
+                                                           lane_i(pk.index, k), mp, k)
                                 else:
                                     h = finish_hit(scene, e.o, e.d, t_lo, time, lane(pk.best, k), lane_i(pk.kind, k),
                                                    lane_i(pk.index, k))

@@ -281,18 +281,23 @@ class Renderer:
             rows = list(range(first, cam.height, step))
             count = max(1, min(len(rows), SLICES_PER_WORKER * workers)) if self.device.is_cpu else 1
             run = pixels_per_thread(self.device, cam.width)
-            pilot_pixels = np.concatenate([np.arange(r * cam.width, (r + 1) * cam.width) for r in rows])
+            pilot_pixels = (np.asarray(rows)[:, None] * cam.width + np.arange(cam.width)).reshape(-1)
+            # one film and one set of recorded launches per seed, replayed for each light count (the
+            # count is read from the scene's light rows, which set_auto_light_samples rewrites)
+            pilots = []
+            for seed in splitting.PILOT_SEEDS:
+                params = render_params(self.scene, splitting.PILOT_SPP, seed, self.built.features)
+                film = Film(cam.width, cam.height, self.device)
+                pilots.append((film, [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run,
+                                                device=self.device, record_cmd=True,
+                                                inputs=[self.built.data, self.built.camera, params, rows[j],
+                                                        step * count, 0, 0, film.data, run])
+                                      for j in range(count)]))
             errors = []
             for n in (1, splitting.PROBE):
                 self.built.set_auto_light_samples(n)
                 means = []
-                for seed in splitting.PILOT_SEEDS:
-                    params = render_params(self.scene, splitting.PILOT_SPP, seed, self.built.features)
-                    film = Film(cam.width, cam.height, self.device)
-                    launches = [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run, device=self.device,
-                                          record_cmd=True, inputs=[self.built.data, self.built.camera, params, rows[j],
-                                                                   step * count, 0, 0, film.data, run])
-                                for j in range(count)]
+                for film, launches in pilots:
                     run_pass(self._pool.get(workers), launches, workers, 0, splitting.PILOT_SPP)
                     wp.synchronize_device(self.device)
                     means.append(film.luminance_stats(splitting.PILOT_SPP)[0][pilot_pixels])

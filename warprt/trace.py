@@ -395,13 +395,15 @@ def make_trace(F: Features) -> SimpleNamespace:
         return interval_hit(solid_interval(k, rec, solid_pose(rec, time), o, d), t_min, t_max)
 
     @wp.func
-    def solid_details(rec: SolidRec, h_in: Hit, o: wp.vec3, d: wp.vec3, time: float) -> Hit:
-        """h_in (a solid's hit at h_in.t) with its point refined onto the surface, its normal and
+    def solid_details(rec: SolidRec, k: int, index: int, t: float, o: wp.vec3, d: wp.vec3, time: float) -> Hit:
+        """The hit of solid (k, index) at t with its point refined onto the surface, its normal and
         material. The point is found in the solid's frame: on a box face the face's coordinate
         is set exactly and the others clamped to the face; on a cylinder side or a capsule the
         point is put at radius r from the axis (the segment)."""
-        h = h_in
-        k = h.kind
+        h = Hit()
+        h.t = t
+        h.kind = k
+        h.index = index
         pose = solid_pose(rec, time)
         o_l = wp.quat_rotate_inv(pose.rot, o - pose.pos)
         d_l = wp.quat_rotate_inv(pose.rot, d)
@@ -973,9 +975,10 @@ def make_trace(F: Features) -> SimpleNamespace:
             h.mag = abs3(c) + abs3(h.ng) * r  # the centre, and the radius along each axis
             h.mat = scene.spheres[index].mat
         elif kind == KIND_PLANE:
-            # (the planar kinds' fields written in place: a Hit passed by value to a function is
-            # copied in 8-byte words, and the copy's first word, t and kind stored apart just
-            # above, waited for both stores to complete)
+            # (the planar kinds' fields written in place, and a mesh's or solid's hit made by its
+            # details function: a Hit passed by value to a function is copied in 8-byte words,
+            # and the copy's first word, t and kind stored apart just above, waited for both
+            # stores to complete)
             h.p = refine_on_plane(p, scene.planes[index].p, scene.planes[index].n)
             h.ng = scene.planes[index].n
             h.ns = h.ng
@@ -1000,7 +1003,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                 return mesh_details(scene, index, best, o, d, face, bu, bv, time)
         if wp.static(F.solids):
             if kind >= KIND_BOX:
-                h = solid_details(solid_rec(scene, kind, index), h, o, d, time)
+                return solid_details(solid_rec(scene, kind, index), kind, index, best, o, d, time)
         return h
 
     @wp.func(inline=True)
