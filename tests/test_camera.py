@@ -172,3 +172,68 @@ def test_zero_aperture_ignores_the_lens_samples():
     o1, d1 = warprt.camera_rays(scene, lens=rng.uniform(0, 1, (16, 2)))
     np.testing.assert_array_equal(o0, o1)
     np.testing.assert_array_equal(d0, d1)
+
+
+def test_a_packets_directions_equal_camera_ray_lane_by_lane():
+    """``camera.camera_packet`` (a camera packet's 8 pinhole directions at once, in the frame
+    ``camera_frame`` gives), as clang vectors and lane by lane (its CUDA branch, compiled here on
+    the CPU), equals ``camera_ray`` for each lane bit for bit: random cameras (narrow to wide
+    fields of view, tilted up vectors, far eyes, non-square images, image planes near and far)
+    and raster points over the
+    whole image, its corners and edges included."""
+    import warp as wp
+
+    from warprt import camera as cm
+
+    rng = np.random.default_rng(21)
+    n = 512
+    cams = []
+    for i in range(n):
+        eye = rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 3)
+        look = eye + rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 2)
+        scene = warprt.Scene(camera=warprt.Camera(eye=tuple(eye), look_at=tuple(look), up=tuple(rng.normal(0, 1, 3)),
+                                                  fov=float(rng.uniform(5, 150)), width=int(rng.integers(1, 400)),
+                                                  height=int(rng.integers(1, 400)),
+                                                  distance=float(10.0 ** rng.uniform(-2, 2))),
+                             shapes=(warprt.Sphere(center=(0, 0, 0), radius=1.0),), lights=())
+        cams.append(cm.camera_data(scene))
+    size = np.array([[c.width, c.height] for c in cams], np.float32)
+    pts = rng.random((n, 8, 2)).astype(np.float32) * size[:, None]
+    pts[:, 0] = 0.0
+    pts[:, 1] = size
+    pts[:, 2, 0] = size[:, 0]
+
+    def kernel_for(packet):
+        @wp.kernel(module="unique", enable_backward=False)
+        def k(cams: wp.array(dtype=cm.CameraData), fx: wp.array2d(dtype=float), fy: wp.array2d(dtype=float),
+              out: wp.array2d(dtype=wp.vec3), want: wp.array2d(dtype=wp.vec3)):
+            i = wp.tid()
+            cam = cams[i]
+            f = cm.camera_frame(cam, cam.t_open)
+            px = cm.PacketF()
+            py = cm.PacketF()
+            for j in range(8):
+                px[j] = fx[i, j]
+                py[j] = fy[i, j]
+            dx = cm.PacketF()
+            dy = cm.PacketF()
+            dz = cm.PacketF()
+            packet(cam.right, cam.top, cam.dist, cam.width, cam.height, f.u, f.v, f.w, px, py, dx, dy, dz)
+            for j in range(8):
+                out[i, j] = wp.vec3(dx[j], dy[j], dz[j])
+                r = cm.camera_ray(cam, fx[i, j], fy[i, j], wp.vec2(0.5, 0.5), cam.t_open)
+                want[i, j] = r.d
+        return k
+
+    lanes = wp.func_native(cm._CAMERA_PACKET.replace("#if defined(__clang__) && !defined(__CUDA_ARCH__)", "#if 0"))(
+        cm.camera_packet.func)
+    for variant, fn in (("vectors", cm.camera_packet), ("lanes", lanes)):
+        out = wp.zeros((n, 8), dtype=wp.vec3, device="cpu")
+        want = wp.zeros((n, 8), dtype=wp.vec3, device="cpu")
+        wp.launch(kernel_for(fn), dim=n, device="cpu",
+                  inputs=[wp.array(cams, dtype=cm.CameraData, device="cpu"),
+                          wp.array(np.ascontiguousarray(pts[..., 0]), dtype=float, device="cpu"),
+                          wp.array(np.ascontiguousarray(pts[..., 1]), dtype=float, device="cpu"), out, want])
+        got, ref = out.numpy(), want.numpy()
+        assert np.isfinite(ref).all() and (np.abs(np.linalg.norm(ref, axis=-1) - 1) < 1e-6).all()
+        np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)

@@ -202,6 +202,39 @@ def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by
 
 
 
+def test_a_packets_camera_rays_equal_each_made_alone(device, monkeypatch):
+    """A camera packet's pinhole rays, at rest, are made for its 8 lanes at once
+    (``camera.camera_packet`` in the frame ``camera_frame`` gives once per thread); a thin lens, a
+    moving camera and a scene whose objects move (time sampled) take each lane's ``camera_ray``.
+    Each renders the same image bit for bit as one-sample passes with one pixel a thread, where
+    every camera ray is made alone: full packets, a part packet and packets over several pixels
+    (adaptive counts), with Sobol points (the packet's path) and stratified ones."""
+    from warprt.trace import PACKET
+
+    cams = dict(pinhole=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14, fov=50.0),
+                lens=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14, aperture=0.1),
+                moving=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14,
+                                     eye_end=(0.6, 1.1, 4)))
+    scenes = {k: _scene(camera=c) for k, c in cams.items()}
+    scenes["objects moving"] = _scene(camera=cams["pinhole"], shapes=(
+        warprt.Plane(material="floor"),
+        warprt.Sphere(center=(0, 0.5, 0), radius=0.5, material="ball", center_end=(0.3, 0.5, 0))))
+    images = {}
+    for alone in (False, True):
+        if alone:
+            monkeypatch.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
+        for name, scene in scenes.items():
+            for sampler in ("sobol", "stratified"):
+                ren = warprt.Renderer(scene.with_settings(sampler=sampler), device=device, features=Features.full())
+                for spp, adaptive in ((PACKET, False), (PACKET + 3, False), (8, True)):
+                    img = ren.render(spp=spp, seed=6, progress=False, adaptive=adaptive,
+                                     pass_spp=1 if alone else None).image
+                    images[alone, name, sampler, spp, adaptive] = img.tobytes()
+    for key, img in images.items():
+        if not key[0]:
+            assert img == images[(True,) + key[1:]], key[1:]
+
+
 @pytest.mark.parametrize("sampler", ["stratified", "sobol"])
 def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monkeypatch, sampler):
     """With camera packets and area lights (and no secondary rays) a packet's shading points draw

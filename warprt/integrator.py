@@ -33,7 +33,7 @@ import warp as wp
 
 from . import _warp
 from ._warp import build_once
-from .camera import camera_ray
+from .camera import camera_frame, camera_packet, camera_ray
 from .film import FilmData, luminance, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights
@@ -201,6 +201,12 @@ def kernels_for(F: Features) -> SimpleNamespace:
         p_key = wp.uint32(0)
         one_s = int(0)
         mixed = bool(False)
+        # a pinhole camera at rest: its frame once, a packet's 8 directions at once (camera_packet)
+        pinhole = cam.lens_radius <= 0.0
+        if wp.static(F.motion):
+            if params.moving != 0 and cam.t_close > cam.t_open:
+                pinhole = False
+        frame = camera_frame(cam, cam.t_open)
         while g_j < n_pix:
             lanes = int(0)
             mixed = bool(False)
@@ -278,6 +284,20 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     if wp.static(F.lens):
                         if cam.lens_radius > 0.0:
                             sobol_packet(keys, idx, wp.uint32(DIM_LENS), ulx, uly)
+                dxp = PacketF()
+                dyp = PacketF()
+                dzp = PacketF()
+                if sobol and pinhole:
+                    fxp = PacketF()
+                    fyp = PacketF()
+                    for k in range(lanes):
+                        jk = p_j
+                        if mixed:
+                            jk = lane_j[k]
+                        fxp[k] = float(px0 + jk) + ufx[k]
+                        fyp[k] = float(py) + ufy[k]
+                    camera_packet(cam.right, cam.top, cam.dist, cam.width, cam.height, frame.u, frame.v, frame.w, fxp,
+                                  fyp, dxp, dyp, dzp)
                 for k in range(lanes):
                     jk = p_j
                     sk = one_s + k
@@ -287,7 +307,11 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         sk = lane_s[k]
                         kk = lane_key[k]
                     cs = CameraSample()
-                    if sobol:
+                    if sobol and pinhole:
+                        cs.o = frame.eye
+                        cs.d = wp.vec3(dxp[k], dyp[k], dzp[k])
+                        cs.time = cam.t_open
+                    elif sobol:
                         cs = camera_from(cam, params, wp.vec2(ufx[k], ufy[k]), utx[k], wp.vec2(ulx[k], uly[k]), px0 + jk,
                                          py)
                     else:
