@@ -528,6 +528,86 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
         assert 0.05 * asked < lit < 0.5 * asked
 
 
+def test_a_packets_samples_equal_the_film_functions_lane_by_lane():
+    """``film.packet_samples`` (a shaded packet's 8 samples as the film adds them: the lit lanes'
+    mul_sat(1, local + area), every lane sanitised, its luminance squared), as clang vectors and
+    lane by lane (its CUDA branch, compiled here on the CPU), gives each lane exactly what
+    ``shading.mul_sat``, ``film.sanitize`` and ``film.luminance`` give it: ordinary colours,
+    zeros of both signs, negatives, NaN and Inf in any channel, sums past FLT_MAX, clamps of
+    1, 100 and Inf, every lit mask."""
+    import warp as wp
+
+    from warprt import film as fm
+    from warprt.accel import PacketF
+    from warprt.shading import mul_sat
+
+    rng = np.random.default_rng(17)
+    n = 4096
+    special = np.array([0.0, -0.0, -1.0, np.nan, np.inf, -np.inf, 3.0e38, 1.0e-45, 2.5], np.float32)
+
+    def colours():
+        c = (rng.random((n, 3, 8)) * 10.0 ** rng.uniform(-3, 3, (n, 3, 8))).astype(np.float32)
+        pick = rng.random((n, 3, 8)) < 0.25
+        c[pick] = rng.choice(special, int(pick.sum()))
+        return c
+
+    local, area = colours(), colours()
+    lit = rng.integers(0, 256, n).astype(np.int32)
+    clamp = rng.choice(np.array([1.0, 100.0, np.inf], np.float32), n)
+
+    def kernel_for(fn):
+        @wp.kernel(module="unique", enable_backward=False)
+        def k(local: wp.array3d(dtype=float), area: wp.array3d(dtype=float), lit: wp.array(dtype=int),
+              clamp: wp.array(dtype=float), out: wp.array3d(dtype=float), want: wp.array3d(dtype=float)):
+            i = wp.tid()
+            r = PacketF()
+            g = PacketF()
+            b = PacketF()
+            ar = PacketF()
+            ag = PacketF()
+            ab = PacketF()
+            for j in range(8):
+                r[j] = local[i, 0, j]
+                g[j] = local[i, 1, j]
+                b[j] = local[i, 2, j]
+                ar[j] = area[i, 0, j]
+                ag[j] = area[i, 1, j]
+                ab[j] = area[i, 2, j]
+            fr = PacketF()
+            fg = PacketF()
+            fb = PacketF()
+            fy = PacketF()
+            fn(r, g, b, ar, ag, ab, lit[i], clamp[i], fr, fg, fb, fy)
+            for j in range(8):
+                out[i, 0, j] = fr[j]
+                out[i, 1, j] = fg[j]
+                out[i, 2, j] = fb[j]
+                out[i, 3, j] = fy[j]
+                L = wp.vec3(r[j], g[j], b[j])
+                if (lit[i] >> j) & 1 != 0:
+                    L = wp.vec3(0.0, 0.0, 0.0) + mul_sat(wp.vec3(1.0, 1.0, 1.0), L + wp.vec3(ar[j], ag[j], ab[j]))
+                L = fm.sanitize(L, clamp[i])
+                y = fm.luminance(L)
+                want[i, 0, j] = L[0]
+                want[i, 1, j] = L[1]
+                want[i, 2, j] = L[2]
+                want[i, 3, j] = y * y
+        return k
+
+    for variant, fn in (("vectors", fm.packet_samples), ("lanes", _lane_by_lane(fm.packet_samples, fm._PACKET_SAMPLES))):
+        out = wp.zeros((n, 4, 8), dtype=float, device="cpu")
+        want = wp.zeros((n, 4, 8), dtype=float, device="cpu")
+        wp.launch(kernel_for(fn), dim=n, device="cpu",
+                  inputs=[wp.array(local, dtype=float, device="cpu"), wp.array(area, dtype=float, device="cpu"),
+                          wp.array(lit, dtype=int, device="cpu"), wp.array(clamp, dtype=float, device="cpu"), out,
+                          want])
+        got, ref = out.numpy(), want.numpy()
+        np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)
+        # the cases are there: clamped, zeroed NaNs, saturated sums and plain values
+        assert (ref[:, :3] == 1.0).sum() > 100 and (ref[:, :3] == 0.0).sum() > 1000
+        assert ((ref[:, :3] > 0) & (ref[:, :3] < 1)).sum() > 1000 and (ref[:, :3] == 3.4028235e38).sum() > 10
+
+
 def test_a_packets_bvh_leaf_updates_equal_the_lane_loop():
     """A sphere, rectangle or plane against a camera packet's first n lanes (a leaf of the analytic
     BVH, or the loops' shapes: ``geometry.sphere_leaf_packet``, ``rect_leaf_packet``,

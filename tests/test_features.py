@@ -277,15 +277,18 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
             light_sampling=mode, sampler=sampler)
         ren = warprt.Renderer(scene, device=device)
         assert ren.features.camera_packets and ren.features.area_lights and not ren.features.secondary
-        a = ren.render(spp=spp, seed=4, progress=False).image
+        ra = ren.render(spp=spp, seed=4, progress=False)
+        a = ra.image
         a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
         with monkeypatch.context() as m:
             m.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
             alone = warprt.Renderer(scene, device=device)  # every camera sample alone: one a pass and thread
-            b = alone.render(spp=spp, seed=4, progress=False, pass_spp=1).image
+            rb = alone.render(spp=spp, seed=4, progress=False, pass_spp=1)
+            b = rb.image
             b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
         assert a.tobytes() == b.tobytes(), mode
         assert a_adaptive.tobytes() == b_adaptive.tobytes(), mode
+        assert ra.rays == rb.rays, mode  # the shadow rays counted too
         assert a.min() >= 0.0 and a.mean() > 0.05
 
 

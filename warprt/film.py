@@ -16,6 +16,7 @@ import numpy as np
 import warp as wp
 
 from ._warp import build_once
+from .accel import PacketF
 
 NO_LIMIT = (1 << 31) - 1  # FilmData.limit of a pixel without a sample cap
 
@@ -43,6 +44,73 @@ def sanitize(c: wp.vec3, clamp: float) -> wp.vec3:
         if not wp.isnan(x):
             out[k] = wp.clamp(x, 0.0, clamp)
     return out
+
+
+# A shaded camera packet's 8 samples as the film takes them, at once (clang vectors; lane by lane
+# on CUDA): the lanes in ``lit`` (a bit mask) first add their area lights to the rest,
+# mul_sat(1, local + area) (``shading.mul_sat``); then every lane is ``sanitize``d, and its
+# luminance squared (``luminance``, each product and sum rounded once, as Warp's C++ has them)
+# comes out with it. Each lane's values are the scalar functions', bit for bit; the pixel's sums
+# still add them lane by lane, in order.
+_PACKET_SAMPLES = r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 R, G, B, AR, AG, AB;
+__builtin_memcpy(&R, &r, 32); __builtin_memcpy(&G, &g, 32); __builtin_memcpy(&B, &b, 32);
+__builtin_memcpy(&AR, &ar, 32); __builtin_memcpy(&AG, &ag, 32); __builtin_memcpy(&AB, &ab, 32);
+const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lit) != 0;
+const v8 zero = 0.0f, big = 3.4028234663852886e38f, cl = clamp;
+auto lit_sum = [&](v8 l, v8 a) {
+    const v8 x = l + a;
+    const v8 x1 = 1.0f * x;
+    const v8 m = x > 0.0f ? (x1 <= big ? x1 : big) : zero;  // mul_sat(1, x): min(1·x, FLT_MAX)
+    return zero + m;
+};
+auto clean = [&](v8 x) {  // clamp(x, 0, clamp) (a NaN gives fmax's 0, as sanitize's test does)
+    const v8 hi = zero >= x ? zero : (x == x ? x : zero);  // fmax(0, x)
+    return hi <= cl ? hi : (cl == cl ? cl : hi);  // fmin(., clamp)
+};
+const v8 Rs = clean(on ? lit_sum(R, AR) : R), Gs = clean(on ? lit_sum(G, AG) : G), Bs = clean(on ? lit_sum(B, AB) : B);
+const v8 t1 = (float)0.2126 * Rs;
+const v8 t2 = (float)0.7152 * Gs;
+const v8 t3 = t1 + t2;
+const v8 t4 = (float)0.0722 * Bs;
+const v8 y = t3 + t4;
+const v8 y2 = y * y;
+__builtin_memcpy(&out_r, &Rs, 32); __builtin_memcpy(&out_g, &Gs, 32); __builtin_memcpy(&out_b, &Bs, 32);
+__builtin_memcpy(&out_y2, &y2, 32);
+#else
+for (int l = 0; l < 8; ++l) {
+    float c[3] = {r[l], g[l], b[l]};
+    const float a[3] = {ar[l], ag[l], ab[l]};
+    for (int k = 0; k < 3; ++k) {
+        if ((lit >> l) & 1) {
+            const float x = c[k] + a[k];
+            const float x1 = 1.0f * x;
+            const float m = x > 0.0f ? (x1 <= 3.4028234663852886e38f ? x1 : 3.4028234663852886e38f) : 0.0f;
+            c[k] = 0.0f + m;
+        }
+        const float x = c[k];
+        const float hi = 0.0f >= x ? 0.0f : (x == x ? x : 0.0f);
+        c[k] = hi <= clamp ? hi : (clamp == clamp ? clamp : hi);
+    }
+    const float t1 = (float)0.2126 * c[0];
+    const float t2 = (float)0.7152 * c[1];
+    const float t3 = t1 + t2;
+    const float t4 = (float)0.0722 * c[2];
+    const float y = t3 + t4;
+    out_r[l] = c[0]; out_g[l] = c[1]; out_b[l] = c[2]; out_y2[l] = y * y;
+}
+#endif
+"""
+
+
+@wp.func_native(_PACKET_SAMPLES)
+def packet_samples(r: PacketF, g: PacketF, b: PacketF, ar: PacketF, ag: PacketF, ab: PacketF, lit: int, clamp: float,
+                   out_r: wp.ref[PacketF], out_g: wp.ref[PacketF], out_b: wp.ref[PacketF], out_y2: wp.ref[PacketF]):
+    """A shaded packet's samples as the film adds them (see above)."""
+    ...
 
 
 @build_once

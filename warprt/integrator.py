@@ -34,7 +34,7 @@ import warp as wp
 from . import _warp
 from ._warp import build_once
 from .camera import camera_frame, camera_packet, camera_ray
-from .film import FilmData, luminance, sanitize
+from .film import FilmData, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights
 from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
@@ -424,6 +424,14 @@ def kernels_for(F: Features) -> SimpleNamespace:
                         if wp.static(F.area_lights):
                             if scene.n_alights > 0:
                                 lp = area_lights_packet(scene, params, sp_, lanes, lit)
+            # a shaded packet's samples as the film adds them, the 8 lanes at once (film.packet_samples)
+            film_r = PacketF()
+            film_g = PacketF()
+            film_b = PacketF()
+            film_y2 = PacketF()
+            if wp.static(shade_packets):
+                if shaded:
+                    packet_samples(lr, lg, lb, lp.r, lp.g, lp.b, lit, params.clamp, film_r, film_g, film_b, film_y2)
             # the packet's lanes pixel by pixel: a pixel's sums are fetched before its lanes and
             # stored after them, never inside the loop over its samples (stores there kept the
             # compiler from hoisting the scene's loads out of it: 4-10% of a sample)
@@ -461,18 +469,11 @@ def kernels_for(F: Features) -> SimpleNamespace:
                 for k in range(k_lo, k_hi):
                     if wp.static(shade_packets):
                         if shaded:
-                            Ls = wp.vec3(lr[k], lg[k], lb[k])
                             rays += l_rays[k]
                             if (lit >> k) & 1 != 0:
-                                # local = ambient + point lights, then + the area lights
-                                Ls = wp.vec3(0.0, 0.0, 0.0) + mul_sat(wp.vec3(1.0, 1.0, 1.0),
-                                                                      Ls + wp.vec3(lane(lp.r, k), lane(lp.g, k),
-                                                                                   lane(lp.b, k)))
-                                rays += lane_i(lp.rays, k)
-                            Ls = sanitize(Ls, params.clamp)
-                            acc = acc + Ls
-                            ys = luminance(Ls)
-                            acc_sq = acc_sq + ys * ys
+                                rays += lane_i(lp.rays, k)  # (its area lights' shadow rays)
+                            acc = acc + wp.vec3(film_r[k], film_g[k], film_b[k])
+                            acc_sq = acc_sq + film_y2[k]
                             continue
                     s = one_s + k
                     if wp.static(packets):
