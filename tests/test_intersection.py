@@ -589,6 +589,7 @@ def test_spawned_rays_do_not_hit_their_own_analytic_surface():
     ((1.5, -2.0, 0.5), (0, 0, 0), (1, 1, 1)),
     ((0, 0, 0), (30, 45, 60), (1, 1, 1)),
     ((0, 0, 0), (0, 0, 0), (2.0, 0.5, 1.5)),
+    ((0.4, 0.0, -0.3), (0, 0, 0), (1.0, 1.0, 2.0)),  # unrotated, one axis scaled: not a plain pose
     ((3.0, 1.0, -2.0), (-20, 110, 35), (0.7, 1.8, 1.2)),
 ])
 def test_mesh_instance_transforms_match_transformed_vertices(translate, rotate, scale):
