@@ -407,6 +407,8 @@ def kernels_for(F: Features) -> SimpleNamespace:
                                 sp_.ksr[k] = ks[0]
                                 sp_.ksg[k] = ks[1]
                                 sp_.ksb[k] = ks[2]
+                                if wp.max(ks) > 0.0:
+                                    sp_.glossy = 1
                                 sp_.p_exp[k] = scene.mats[h.mat].p
                         lr[k] = L[0]
                         lg[k] = L[1]

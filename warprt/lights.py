@@ -58,6 +58,7 @@ class ShadePacket:
     time: PacketF
     key: PacketU
     sample: PacketI
+    glossy: int  # 1 when a lane's material has a specular colour (ks > 0); 0: every lobe is kd · n·l
 
 
 @wp.struct
@@ -287,6 +288,7 @@ def make_lights(F: Features) -> SimpleNamespace:
         (``shapes.rect_draw_packet``), then each lane's shadow ray; other emitters, and lanes a
         rectangle is drawn for by solid angle, one lane at a time."""
         out = LightPacket()
+        glossy = sp.glossy
         ux = PacketF()
         uy = PacketF()
         y0 = PacketF()
@@ -349,7 +351,9 @@ def make_lights(F: Features) -> SimpleNamespace:
                     for k in range(lanes):
                         if (m >> k) & 1 == 0:
                             continue
-                        f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
+                        f = wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)) * nl[k]
+                        if glossy != 0:
+                            f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
                         if wp.max(f) <= 0.0:
                             continue
                         lane_addi(out.rays, k, 1)
@@ -401,6 +405,7 @@ def make_lights(F: Features) -> SimpleNamespace:
         lanes' shadow rays together (``occluded_packet``; a kernel without secondary rays has no
         transparent materials)."""
         out = LightPacket()
+        glossy = sp.glossy
         dist = PacketF()
         nl = PacketF()
         hl = PacketF()
@@ -424,7 +429,9 @@ def make_lights(F: Features) -> SimpleNamespace:
             for k in range(PACKET):
                 if (m >> k) & 1 == 0:
                     continue
-                f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
+                f = wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)) * nl[k]
+                if glossy != 0:
+                    f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
                 if wp.max(f) <= 0.0:
                     continue
                 out.rays[k] += 1
