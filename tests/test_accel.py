@@ -608,6 +608,83 @@ def test_a_packets_samples_equal_the_film_functions_lane_by_lane():
         assert ((ref[:, :3] > 0) & (ref[:, :3] < 1)).sum() > 1000 and (ref[:, :3] == 3.4028235e38).sum() > 10
 
 
+def test_a_packets_point_light_sums_equal_the_lane_loop():
+    """``lights.point_sums`` (a point light's mul_sat(1, mul_sat(I, f)) added to a packet's lit
+    lanes, I over dist² for an inverse-square light), as clang vectors and lane by lane (its CUDA
+    branch, compiled here on the CPU), gives each lane exactly what ``point_lights_packet``'s loop
+    over the lanes gave: colours and intensities of every size, zeros, Inf, products past
+    FLT_MAX, tiny and huge distances, both falloffs, every lit mask; unlit lanes untouched."""
+    import warp as wp
+
+    from warprt import lights as lt
+    from warprt.accel import PacketF
+    from warprt.shading import mul_sat
+
+    rng = np.random.default_rng(23)
+    n = 4096
+    f = (rng.random((n, 3, 8)) * 10.0 ** rng.uniform(-3, 3, (n, 3, 8))).astype(np.float32)
+    f[rng.random((n, 3, 8)) < 0.1] = 0.0
+    f[rng.random((n, 3, 8)) < 0.03] = 3.0e38
+    inten = (rng.random((n, 3)) * 10.0 ** rng.uniform(-2, 6, (n, 3))).astype(np.float32)
+    inten[rng.random((n, 3)) < 0.1] = 0.0
+    inten[rng.random((n, 3)) < 0.02] = np.inf
+    dist = (10.0 ** rng.uniform(-20, 20, (n, 8))).astype(np.float32)
+    acc = (rng.random((n, 3, 8)) * 4).astype(np.float32)
+    lit = rng.integers(0, 256, n).astype(np.int32)
+    inv_sq = rng.integers(0, 2, n).astype(np.int32)
+
+    def kernel_for(fn):
+        @wp.kernel(module="unique", enable_backward=False)
+        def k(f: wp.array3d(dtype=float), inten: wp.array(dtype=wp.vec3), dist: wp.array2d(dtype=float),
+              acc: wp.array3d(dtype=float), lit: wp.array(dtype=int), inv_sq: wp.array(dtype=int),
+              out: wp.array3d(dtype=float), want: wp.array3d(dtype=float)):
+            i = wp.tid()
+            fr = PacketF()
+            fg = PacketF()
+            fb = PacketF()
+            d = PacketF()
+            r = PacketF()
+            g = PacketF()
+            b = PacketF()
+            for j in range(8):
+                fr[j] = f[i, 0, j]
+                fg[j] = f[i, 1, j]
+                fb[j] = f[i, 2, j]
+                d[j] = dist[i, j]
+                r[j] = acc[i, 0, j]
+                g[j] = acc[i, 1, j]
+                b[j] = acc[i, 2, j]
+            fn(lit[i], inten[i], inv_sq[i], d, fr, fg, fb, r, g, b)
+            for j in range(8):
+                out[i, 0, j] = r[j]
+                out[i, 1, j] = g[j]
+                out[i, 2, j] = b[j]
+                c = wp.vec3(acc[i, 0, j], acc[i, 1, j], acc[i, 2, j])
+                if (lit[i] >> j) & 1 != 0:
+                    I = inten[i]
+                    if inv_sq[i] == 1:
+                        I = I / (d[j] * d[j])
+                    L = mul_sat(wp.vec3(1.0, 1.0, 1.0), mul_sat(I, wp.vec3(fr[j], fg[j], fb[j])))
+                    c = wp.vec3(c[0] + L[0], c[1] + L[1], c[2] + L[2])
+                want[i, 0, j] = c[0]
+                want[i, 1, j] = c[1]
+                want[i, 2, j] = c[2]
+        return k
+
+    for variant, fn in (("vectors", lt.point_sums), ("lanes", _lane_by_lane(lt.point_sums, lt._POINT_SUMS))):
+        out = wp.zeros((n, 3, 8), dtype=float, device="cpu")
+        want = wp.zeros((n, 3, 8), dtype=float, device="cpu")
+        wp.launch(kernel_for(fn), dim=n, device="cpu",
+                  inputs=[wp.array(f, dtype=float, device="cpu"), wp.array(inten, dtype=wp.vec3, device="cpu"),
+                          wp.array(dist, dtype=float, device="cpu"), wp.array(acc, dtype=float, device="cpu"),
+                          wp.array(lit, dtype=int, device="cpu"), wp.array(inv_sq, dtype=int, device="cpu"), out,
+                          want])
+        got, ref = out.numpy(), want.numpy()
+        np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)
+        added = ref != acc
+        assert added.mean() > 0.2 and (ref == 3.4028235e38).sum() > 10 and (ref == acc).mean() > 0.4
+
+
 def test_a_packets_bvh_leaf_updates_equal_the_lane_loop():
     """A sphere, rectangle or plane against a camera packet's first n lanes (a leaf of the analytic
     BVH, or the loops' shapes: ``geometry.sphere_leaf_packet``, ``rect_leaf_packet``,

@@ -215,6 +215,55 @@ def lobe_packet(lanes: int, lx: PacketF, ly: PacketF, lz: PacketF, gx: PacketF, 
     ...
 
 
+# A point light's share for a packet's lanes in ``lit`` (a bit mask), at once (clang vectors; lane
+# by lane on CUDA), each lane's the scalar loop's bit for bit: its intensity I (over dist² when
+# ``inv_sq``), mul_sat(1, mul_sat(I, f)) for the lane's colour f, added to the lane's sums.
+# mul_sat(x, y) is (x > 0 and y > 0) ? min(x·y, FLT_MAX) : 0 per channel (``shading.mul_sat``).
+_POINT_SUMS = r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lit) != 0;
+const v8 zero = 0.0f, big = 3.4028234663852886e38f, one = 1.0f;
+auto sat = [&](v8 x, v8 y) {
+    const v8 p = x * y;
+    return (x > 0.0f) & (y > 0.0f) ? (p <= big ? p : big) : zero;
+};
+v8 D, F0, F1, F2, O0, O1, O2;
+__builtin_memcpy(&D, &dist, 32);
+__builtin_memcpy(&F0, &fr, 32); __builtin_memcpy(&F1, &fg, 32); __builtin_memcpy(&F2, &fb, 32);
+__builtin_memcpy(&O0, &out_r, 32); __builtin_memcpy(&O1, &out_g, 32); __builtin_memcpy(&O2, &out_b, 32);
+const v8 dd = D * D;
+const v8 I0 = inv_sq ? intensity[0] / dd : (v8)(intensity[0]);
+const v8 I1 = inv_sq ? intensity[1] / dd : (v8)(intensity[1]);
+const v8 I2 = inv_sq ? intensity[2] / dd : (v8)(intensity[2]);
+const v8 L0 = sat(one, sat(I0, F0)), L1 = sat(one, sat(I1, F1)), L2 = sat(one, sat(I2, F2));
+O0 = on ? O0 + L0 : O0; O1 = on ? O1 + L1 : O1; O2 = on ? O2 + L2 : O2;
+__builtin_memcpy(&out_r, &O0, 32); __builtin_memcpy(&out_g, &O1, 32); __builtin_memcpy(&out_b, &O2, 32);
+#else
+auto sat = [](float x, float y) {
+    const float p = x * y;
+    return x > 0.0f && y > 0.0f ? (p <= 3.4028234663852886e38f ? p : 3.4028234663852886e38f) : 0.0f;
+};
+for (int l = 0; l < 8; ++l) {
+    if (!((lit >> l) & 1)) continue;
+    const float dd = dist[l] * dist[l];
+    const float f[3] = {fr[l], fg[l], fb[l]};
+    float L[3];
+    for (int c = 0; c < 3; ++c) L[c] = sat(1.0f, sat(inv_sq ? intensity[c] / dd : intensity[c], f[c]));
+    out_r[l] = out_r[l] + L[0]; out_g[l] = out_g[l] + L[1]; out_b[l] = out_b[l] + L[2];
+}
+#endif
+"""
+
+
+@wp.func_native(_POINT_SUMS)
+def point_sums(lit: int, intensity: wp.vec3, inv_sq: int, dist: PacketF, fr: PacketF, fg: PacketF, fb: PacketF,
+               out_r: wp.ref[PacketF], out_g: wp.ref[PacketF], out_b: wp.ref[PacketF]):
+    """See above."""
+    ...
+
+
 @wp.func(inline=True)
 def lobe_colour(sp: ShadePacket, k: int, nl: float, hl: float, nh: float) -> wp.vec3:
     """``blinn_phong``'s colour for lane k of a packet's shading points from its n·l, |l + v| and
@@ -443,16 +492,11 @@ def make_lights(F: Features) -> SimpleNamespace:
                 continue
             blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time)
             lit = go & ~blocked
-            for k in range(PACKET):
-                if (lit >> k) & 1 == 0:
-                    continue
-                I = scene.plights[i].intensity
-                if scene.plights[i].inv_sq == 1:
-                    I = I / (dist[k] * dist[k])
-                L = mul_sat(wp.vec3(1.0, 1.0, 1.0), mul_sat(I, wp.vec3(fr[k], fg[k], fb[k])))
-                out.r[k] = out.r[k] + L[0]
-                out.g[k] = out.g[k] + L[1]
-                out.b[k] = out.b[k] + L[2]
+            # each lit lane's mul_sat(1, mul_sat(I, f)), the 8 at once
+            inv_sq = int(0)
+            if scene.plights[i].inv_sq == 1:
+                inv_sq = 1
+            point_sums(lit, scene.plights[i].intensity, inv_sq, dist, fr, fg, fb, out.r, out.g, out.b)
         return out
 
     @wp.func(inline=True)
