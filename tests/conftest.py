@@ -64,7 +64,7 @@ def _variants_built() -> dict:
     """The render-kernel variants and other warprt modules this process built."""
     from warprt import aov, integrator, query
 
-    keys = sorted(f.key for (f,) in integrator.kernels_for.built())
+    keys = sorted(f.key + ("" if packets else " one by one") for (f, packets) in integrator.kernels_for.built())
     extra = [name for name, factory in (("query", query._query_kernels), ("aov", aov._aov_kernel)) if factory.built()]
     return {"variants": keys, "other_modules": extra}
 

@@ -17,9 +17,9 @@ DATA = ROOT / "tests" / "data" / "scene_images.npz"
 WIDTH, SPP = 48, 2
 
 
-def render_all(device: str = "cpu") -> dict[str, np.ndarray]:
-    """The saved images are CPU renders; CUDA's agree to rounding (its sin, exp and the like
-    round differently), not bit for bit."""
+def render_all(device: str = "cpu", packets: bool | None = None) -> dict[str, np.ndarray]:
+    """The saved images are CPU renders (camera rays in packets, the CPU's default); CUDA's agree
+    to rounding (its sin, exp and the like round differently), not bit for bit."""
     import warprt
 
     out = {}
@@ -30,7 +30,7 @@ def render_all(device: str = "cpu") -> dict[str, np.ndarray]:
         # the all-features kernel, which most tests compile anyway (a specialised kernel gives the
         # same image bit for bit: tests/test_features.py), instead of one variant per scene file
         out[path.stem] = warprt.Renderer(scene.replace(camera=small), features=warprt.Features.full(),
-                                         device=device).render(
+                                         device=device, packets=packets).render(
             spp=SPP, seed=7, progress=False).image
     return out
 

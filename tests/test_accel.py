@@ -13,6 +13,7 @@ import warp as wp
 
 import warprt
 from warprt import accel
+from warprt._warp import MODULE_OPTIONS
 from warprt.records import InstRec
 from warprt.trace import mesh_first_hit
 
@@ -118,7 +119,7 @@ def test_closest_hits_through_the_tree_match_a_brute_force(device):
     np.testing.assert_allclose(hits["t"][hit], t_ref[hit], rtol=2e-6, atol=2e-6)
 
 
-def test_the_packet_node_test_lane_by_lane_equals_its_vector_form():
+def test_the_packet_node_test_lane_by_lane_equals_its_vector_form(device):
     """``accel.packet_node`` runs a packet's 8 lanes as clang vectors on the CPU and lane by lane
     where that is not available (CUDA). Both branches, compiled here on the CPU, give the same
     entries bit for bit as a float32 numpy slab test over random boxes and rays: origins inside
@@ -165,10 +166,10 @@ def test_the_packet_node_test_lane_by_lane_equals_its_vector_form():
     table = np.zeros(n_nodes, dtype=accel.BvhNode.numpy_dtype())
     for k, f in enumerate(("lo0", "hi0", "lo1", "hi1")):
         table[f] = rec[:, 3 * k:3 * k + 3]
-    nodes = wp.array(table, dtype=accel.BvhNode, device="cpu")
+    nodes = wp.array(table, dtype=accel.BvhNode, device=device)
     out = {}
     for name, fn in (("vectors", accel.packet_node), ("lanes", lane_by_lane)):
-        @wp.kernel(enable_backward=False, module="unique")
+        @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
         def k(nodes: wp.array(dtype=accel.BvhNode), refs: wp.array(dtype=int), o: wp.array(dtype=wp.vec3, ndim=2),
               inv: wp.array(dtype=wp.vec3, ndim=2), best: wp.array(dtype=float, ndim=2), out: wp.array(dtype=wp.vec2)):
             i = wp.tid()
@@ -189,11 +190,11 @@ def test_the_packet_node_test_lane_by_lane_equals_its_vector_form():
                 bb[l] = best[i, l]
             out[i] = fn(nodes, refs[i], ox, oy, oz, ix, iy, iz, bb)
 
-        res = wp.zeros(n, dtype=wp.vec2, device="cpu")
-        wp.launch(k, dim=n, device="cpu", inputs=[
+        res = wp.zeros(n, dtype=wp.vec2, device=device)
+        wp.launch(k, dim=n, device=device, inputs=[
             nodes,
-            wp.array(ref, dtype=int, device="cpu"), wp.array(o, dtype=wp.vec3, device="cpu"),
-            wp.array(inv, dtype=wp.vec3, device="cpu"), wp.array(best, dtype=float, device="cpu"), res])
+            wp.array(ref, dtype=int, device=device), wp.array(o, dtype=wp.vec3, device=device),
+            wp.array(inv, dtype=wp.vec3, device=device), wp.array(best, dtype=float, device=device), res])
         out[name] = res.numpy()
     np.testing.assert_array_equal(out["vectors"], want)
     np.testing.assert_array_equal(out["lanes"], want)
@@ -288,7 +289,7 @@ def test_mesh_shadow_rays_stop_at_the_first_occluder_with_the_nearest_hit_loops_
     for k, val in tree.record().items():
         setattr(inst, k, val)
 
-    @wp.kernel(enable_backward=False, module="unique")
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
     def k(inst: InstRec, o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), t_max: wp.array(dtype=float),
           out: wp.array(dtype=wp.vec2i)):
         i = wp.tid()
@@ -323,7 +324,7 @@ def _lane_by_lane(native, src):
     return wp.func_native(src.replace("#if defined(__clang__) && !defined(__CUDA_ARCH__)", "#if 0"))(native.func)
 
 
-def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
+def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane(device):
     """The shadow tests and set-ups a packet runs for its 8 lanes at once (``geometry``:
     ``sphere_hits_packet``, ``plane_hits_packet``, ``rect_hits_packet``, ``box_hits_packet``,
     ``shadow_rays_packet``; ``lights.point_light_packet``, ``lobe_packet``), as clang vectors and lane by lane (their
@@ -390,7 +391,7 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
                 v[k] = a[i, k]
             return v
 
-        @wp.kernel(enable_backward=False, module="unique")
+        @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
         def k(o: wp.array(dtype=wp.vec3, ndim=2), d: wp.array(dtype=wp.vec3, ndim=2),
               tm: wp.array(dtype=float, ndim=2), tt: wp.array(dtype=float, ndim=2), c0: wp.array(dtype=wp.vec3),
               dc: wp.array(dtype=wp.vec3), r: wp.array(dtype=float), e1: wp.array(dtype=wp.vec3),
@@ -510,11 +511,11 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
                   dc=(dc, wp.vec3), r=(r, float), e1=(e1, wp.vec3), e2=(e2, wp.vec3), nrm=(nrm, wp.vec3),
                   lo=(lo, wp.vec3), hi=(hi, wp.vec3), gn=(gn, wp.vec3), sn=(sn, wp.vec3), vv=(vv, wp.vec3),
                   pos=(pos, wp.vec3), stop=(stop, float), directional=(directional, int), lanes=(lanes, int))
-    inputs = [wp.array(a, dtype=t, device="cpu") for a, t in arrays.values()]
+    inputs = [wp.array(a, dtype=t, device=device) for a, t in arrays.values()]
     for variant in ("vectors", "lanes"):
         fns = [f if variant == "vectors" else _lane_by_lane(f, src) for f, src in natives]
-        out = wp.zeros((n, 15), dtype=int, device="cpu")
-        wp.launch(kernel_for(*fns), dim=n, device="cpu", inputs=inputs + [out])
+        out = wp.zeros((n, 15), dtype=int, device=device)
+        wp.launch(kernel_for(*fns), dim=n, device=device, inputs=inputs + [out])
         res = out.numpy()
         for j, name in enumerate(("sphere", "plane", "rectangle", "box", "shadow rays", "point light")):
             np.testing.assert_array_equal(res[:, j], res[:, 6 + j], err_msg=f"{variant}: {name}")
@@ -528,7 +529,7 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane():
         assert 0.05 * asked < lit < 0.5 * asked
 
 
-def test_a_packets_samples_equal_the_film_functions_lane_by_lane():
+def test_a_packets_samples_equal_the_film_functions_lane_by_lane(device):
     """``film.packet_samples`` (a shaded packet's 8 samples as the film adds them: the lit lanes'
     mul_sat(1, local + area), every lane sanitised, its luminance squared), as clang vectors and
     lane by lane (its CUDA branch, compiled here on the CPU), gives each lane exactly what
@@ -556,7 +557,7 @@ def test_a_packets_samples_equal_the_film_functions_lane_by_lane():
     clamp = rng.choice(np.array([1.0, 100.0, np.inf], np.float32), n)
 
     def kernel_for(fn):
-        @wp.kernel(module="unique", enable_backward=False)
+        @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
         def k(local: wp.array3d(dtype=float), area: wp.array3d(dtype=float), lit: wp.array(dtype=int),
               clamp: wp.array(dtype=float), out: wp.array3d(dtype=float), want: wp.array3d(dtype=float)):
             i = wp.tid()
@@ -595,11 +596,11 @@ def test_a_packets_samples_equal_the_film_functions_lane_by_lane():
         return k
 
     for variant, fn in (("vectors", fm.packet_samples), ("lanes", _lane_by_lane(fm.packet_samples, fm._PACKET_SAMPLES))):
-        out = wp.zeros((n, 4, 8), dtype=float, device="cpu")
-        want = wp.zeros((n, 4, 8), dtype=float, device="cpu")
-        wp.launch(kernel_for(fn), dim=n, device="cpu",
-                  inputs=[wp.array(local, dtype=float, device="cpu"), wp.array(area, dtype=float, device="cpu"),
-                          wp.array(lit, dtype=int, device="cpu"), wp.array(clamp, dtype=float, device="cpu"), out,
+        out = wp.zeros((n, 4, 8), dtype=float, device=device)
+        want = wp.zeros((n, 4, 8), dtype=float, device=device)
+        wp.launch(kernel_for(fn), dim=n, device=device,
+                  inputs=[wp.array(local, dtype=float, device=device), wp.array(area, dtype=float, device=device),
+                          wp.array(lit, dtype=int, device=device), wp.array(clamp, dtype=float, device=device), out,
                           want])
         got, ref = out.numpy(), want.numpy()
         np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)
@@ -608,7 +609,7 @@ def test_a_packets_samples_equal_the_film_functions_lane_by_lane():
         assert ((ref[:, :3] > 0) & (ref[:, :3] < 1)).sum() > 1000 and (ref[:, :3] == 3.4028235e38).sum() > 10
 
 
-def test_a_packets_point_light_sums_equal_the_lane_loop():
+def test_a_packets_point_light_sums_equal_the_lane_loop(device):
     """``lights.point_sums`` (a point light's mul_sat(1, mul_sat(I, f)) added to a packet's lit
     lanes, I over dist² for an inverse-square light), as clang vectors and lane by lane (its CUDA
     branch, compiled here on the CPU), gives each lane exactly what ``point_lights_packet``'s loop
@@ -634,7 +635,7 @@ def test_a_packets_point_light_sums_equal_the_lane_loop():
     inv_sq = rng.integers(0, 2, n).astype(np.int32)
 
     def kernel_for(fn):
-        @wp.kernel(module="unique", enable_backward=False)
+        @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
         def k(f: wp.array3d(dtype=float), inten: wp.array(dtype=wp.vec3), dist: wp.array2d(dtype=float),
               acc: wp.array3d(dtype=float), lit: wp.array(dtype=int), inv_sq: wp.array(dtype=int),
               out: wp.array3d(dtype=float), want: wp.array3d(dtype=float)):
@@ -672,12 +673,12 @@ def test_a_packets_point_light_sums_equal_the_lane_loop():
         return k
 
     for variant, fn in (("vectors", lt.point_sums), ("lanes", _lane_by_lane(lt.point_sums, lt._POINT_SUMS))):
-        out = wp.zeros((n, 3, 8), dtype=float, device="cpu")
-        want = wp.zeros((n, 3, 8), dtype=float, device="cpu")
-        wp.launch(kernel_for(fn), dim=n, device="cpu",
-                  inputs=[wp.array(f, dtype=float, device="cpu"), wp.array(inten, dtype=wp.vec3, device="cpu"),
-                          wp.array(dist, dtype=float, device="cpu"), wp.array(acc, dtype=float, device="cpu"),
-                          wp.array(lit, dtype=int, device="cpu"), wp.array(inv_sq, dtype=int, device="cpu"), out,
+        out = wp.zeros((n, 3, 8), dtype=float, device=device)
+        want = wp.zeros((n, 3, 8), dtype=float, device=device)
+        wp.launch(kernel_for(fn), dim=n, device=device,
+                  inputs=[wp.array(f, dtype=float, device=device), wp.array(inten, dtype=wp.vec3, device=device),
+                          wp.array(dist, dtype=float, device=device), wp.array(acc, dtype=float, device=device),
+                          wp.array(lit, dtype=int, device=device), wp.array(inv_sq, dtype=int, device=device), out,
                           want])
         got, ref = out.numpy(), want.numpy()
         np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)
@@ -685,7 +686,7 @@ def test_a_packets_point_light_sums_equal_the_lane_loop():
         assert added.mean() > 0.2 and (ref == 3.4028235e38).sum() > 10 and (ref == acc).mean() > 0.4
 
 
-def test_a_packets_bvh_leaf_updates_equal_the_lane_loop():
+def test_a_packets_bvh_leaf_updates_equal_the_lane_loop(device):
     """A sphere, rectangle or plane against a camera packet's first n lanes (a leaf of the analytic
     BVH, or the loops' shapes: ``geometry.sphere_leaf_packet``, ``rect_leaf_packet``,
     ``plane_leaf_packet``), as clang vectors and lane by lane
@@ -716,7 +717,7 @@ def test_a_packets_bvh_leaf_updates_equal_the_lane_loop():
     t_min = np.float32(1e-4)
 
     def kernel_for(sph, rct, pln, exact):
-        @wp.kernel(enable_backward=False, module="unique")
+        @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
         def k(o: wp.array(dtype=wp.vec3, ndim=2), d: wp.array(dtype=wp.vec3, ndim=2),
               tt: wp.array(dtype=float, ndim=2), c: wp.array(dtype=wp.vec3), dc: wp.array(dtype=wp.vec3),
               r: wp.array(dtype=float), e1: wp.array(dtype=wp.vec3), e2: wp.array(dtype=wp.vec3),
@@ -792,10 +793,10 @@ def test_a_packets_bvh_leaf_updates_equal_the_lane_loop():
                 "lanes": (_lane_by_lane(g.sphere_leaf_packet, g._SPHERE_LEAF_PACKET),
                           _lane_by_lane(g.rect_leaf_packet, g._RECT_LEAF_PACKET),
                           _lane_by_lane(g.plane_leaf_packet, g._PLANE_LEAF_PACKET), 0)}.items():
-            outs = [wp.zeros((n, 3, 8), dtype=float, device="cpu"), wp.zeros((n, 3, 8), dtype=int, device="cpu"),
-                    wp.zeros((n, 3, 8), dtype=int, device="cpu"), wp.zeros((n, 3), dtype=float, device="cpu")]
+            outs = [wp.zeros((n, 3, 8), dtype=float, device=device), wp.zeros((n, 3, 8), dtype=int, device=device),
+                    wp.zeros((n, 3, 8), dtype=int, device=device), wp.zeros((n, 3), dtype=float, device=device)]
             wp.launch(kernels[name] if name in kernels else kernels.setdefault(name, kernel_for(sph, rct, pln, exact)),
-                      dim=n, device="cpu", inputs=[wp.array(a, dtype=t, device="cpu") for a, t in arrays] + [t_min] + outs)
+                      dim=n, device=device, inputs=[wp.array(a, dtype=t, device=device) for a, t in arrays] + [t_min] + outs)
             results[name] = [x.numpy() for x in outs]
         for name in ("vectors", "lanes"):
             for got, want in zip(results[name], results["loop"]):

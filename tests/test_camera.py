@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import warprt
+from warprt._warp import MODULE_OPTIONS
 
 DIR_TOL = 2e-6
 
@@ -174,7 +175,7 @@ def test_zero_aperture_ignores_the_lens_samples():
     np.testing.assert_array_equal(d0, d1)
 
 
-def test_a_packets_directions_equal_camera_ray_lane_by_lane():
+def test_a_packets_directions_equal_camera_ray_lane_by_lane(device):
     """``camera.camera_packet`` (a camera packet's 8 pinhole directions at once, in the frame
     ``camera_frame`` gives), as clang vectors and lane by lane (its CUDA branch, compiled here on
     the CPU), equals ``camera_ray`` for each lane bit for bit: random cameras (narrow to wide
@@ -204,7 +205,7 @@ def test_a_packets_directions_equal_camera_ray_lane_by_lane():
     pts[:, 2, 0] = size[:, 0]
 
     def kernel_for(packet):
-        @wp.kernel(module="unique", enable_backward=False)
+        @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
         def k(cams: wp.array(dtype=cm.CameraData), fx: wp.array2d(dtype=float), fy: wp.array2d(dtype=float),
               out: wp.array2d(dtype=wp.vec3), want: wp.array2d(dtype=wp.vec3)):
             i = wp.tid()
@@ -228,12 +229,12 @@ def test_a_packets_directions_equal_camera_ray_lane_by_lane():
     lanes = wp.func_native(cm._CAMERA_PACKET.replace("#if defined(__clang__) && !defined(__CUDA_ARCH__)", "#if 0"))(
         cm.camera_packet.func)
     for variant, fn in (("vectors", cm.camera_packet), ("lanes", lanes)):
-        out = wp.zeros((n, 8), dtype=wp.vec3, device="cpu")
-        want = wp.zeros((n, 8), dtype=wp.vec3, device="cpu")
-        wp.launch(kernel_for(fn), dim=n, device="cpu",
-                  inputs=[wp.array(cams, dtype=cm.CameraData, device="cpu"),
-                          wp.array(np.ascontiguousarray(pts[..., 0]), dtype=float, device="cpu"),
-                          wp.array(np.ascontiguousarray(pts[..., 1]), dtype=float, device="cpu"), out, want])
+        out = wp.zeros((n, 8), dtype=wp.vec3, device=device)
+        want = wp.zeros((n, 8), dtype=wp.vec3, device=device)
+        wp.launch(kernel_for(fn), dim=n, device=device,
+                  inputs=[wp.array(cams, dtype=cm.CameraData, device=device),
+                          wp.array(np.ascontiguousarray(pts[..., 0]), dtype=float, device=device),
+                          wp.array(np.ascontiguousarray(pts[..., 1]), dtype=float, device=device), out, want])
         got, ref = out.numpy(), want.numpy()
         assert np.isfinite(ref).all() and (np.abs(np.linalg.norm(ref, axis=-1) - 1) < 1e-6).all()
         np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)

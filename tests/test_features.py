@@ -3,6 +3,7 @@ image as the all-features kernel, shared mesh assets, and the sphere BVH."""
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import math
 
@@ -71,6 +72,47 @@ def test_specialised_kernel_matches_the_full_kernel_bit_for_bit(device, scene):
     b = full.render(spp=4, progress=False).image
     assert a.tobytes() == b.tobytes()
 
+
+
+def test_camera_rays_one_by_one_give_the_packets_images_bit_for_bit(device):
+    """``packets=False`` (camera rays one by one, CUDA's default: ``integrator.packets_for``)
+    renders what camera packets (the CPU's default) render, bit for bit: every scene file with
+    the all-features kernel (secondary rays, refraction, glossy lobes, a lens, motion, solids,
+    meshes, area lights), against the saved CPU images on the CPU and against packets on CUDA;
+    and a scene without secondary rays, whose packets are also lit together, plain and adaptive,
+    the rays counted too."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from scene_images import DATA, render_all
+
+    one_by_one = render_all(device, packets=False)
+    packets = dict(np.load(DATA)) if device == "cpu" else render_all(device, packets=True)
+    assert sorted(one_by_one) == sorted(packets)
+    for name, image in one_by_one.items():
+        assert image.tobytes() == packets[name].tobytes(), name
+    scene = warprt.load_scene(str(Path(__file__).parents[1] / "scenes" / "soft_shadows.toml"))
+    scene = scene.replace(camera=dataclasses.replace(scene.camera, width=40, height=30)).with_settings(sampler="sobol")
+    a, b = (warprt.Renderer(scene, device=device, packets=p) for p in (True, False))
+    assert a.packets and not b.packets and not a.features.secondary and a.features == b.features
+    for adaptive in (False, True):
+        ra, rb = (r.render(spp=11, seed=5, progress=False, adaptive=adaptive) for r in (a, b))
+        assert ra.image.tobytes() == rb.image.tobytes() and ra.rays == rb.rays, adaptive
+        assert ra.image.mean() > 0.01
+
+
+def test_packets_are_the_cpus_and_one_by_one_cudas():
+    from types import SimpleNamespace
+
+    from warprt.integrator import packets_for
+
+    assert packets_for(SimpleNamespace(is_cpu=True)) is True
+    assert packets_for(SimpleNamespace(is_cpu=False)) is False
+    assert warprt.Renderer(_scene(), device="cpu").packets is True
+    assert warprt.Renderer(_scene(), device="cpu", packets=False).packets is False
+    with pytest.raises(warprt.RenderError, match="packets must be True, False or None"):
+        warprt.Renderer(_scene(), device="cpu", packets=1)
 
 def test_mesh_instances_share_one_asset(device):
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
@@ -276,7 +318,7 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
         scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(
             light_sampling=mode, sampler=sampler)
         ren = warprt.Renderer(scene, device=device)
-        assert ren.features.camera_packets and ren.features.area_lights and not ren.features.secondary
+        assert ren.packets and ren.features.area_lights and not ren.features.secondary
         ra = ren.render(spp=spp, seed=4, progress=False)
         a = ra.image
         a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
@@ -339,7 +381,7 @@ def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeyp
     if not bvh:
         monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
     ren = warprt.Renderer(scene, device=device)
-    assert ren.features.camera_packets and not ren.features.secondary and not ren.features.area_lights
+    assert ren.packets and not ren.features.secondary and not ren.features.area_lights
     assert (ren.built.analytic_bvh is not None) == bvh
     spp = PACKET + 3  # a full packet and a part one per pixel
     a = ren.render(spp=spp, seed=4, progress=False).image

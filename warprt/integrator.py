@@ -103,10 +103,24 @@ def toward_viewer(ng_in: wp.vec3, ns_in: wp.vec3, d: wp.vec3) -> Facing:
     return f
 
 
+def packets_for(device) -> bool:
+    """Whether a device's kernels take camera rays in packets: on the CPU, not on CUDA.
+
+    With packets a thread takes up to ``PACKET`` (8) camera samples at once (a pixel's, or the
+    next pixels' too); they go through the analytic BVH and the meshes together where the scene
+    has them (shape by shape otherwise), and with Sobol points and area lights their samples are
+    drawn and shaded together (``sampling.sobol_packet``, ``lights.area_lights_packet``...), as
+    clang vectors on the CPU. On CUDA, where a thread renders one pixel and the packet functions
+    run lane by lane, the packet's per-thread arrays only cost: the same images (bit for bit) took
+    1.4-4.8x the time a sample on an H200 and twice the compile (docs/benchmarks.md, "On a GPU")."""
+    return bool(device.is_cpu)
+
+
 @build_once
-def kernels_for(F: Features) -> SimpleNamespace:
-    """The render kernel for a feature set (built once per process; ``kernels_for.built()`` lists
-    the feature sets built so far)."""
+def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
+    """The render kernel for a feature set, with camera rays in packets or one by one
+    (:func:`packets_for`; the images are the same bit for bit). Built once per process and
+    argument pair; ``kernels_for.built()`` lists the pairs built so far."""
     trace = make_trace(F)
     lights = make_lights(F)
     closest_hit = trace.closest_hit
@@ -114,7 +128,6 @@ def kernels_for(F: Features) -> SimpleNamespace:
     finish_hit = trace.finish_hit
     mesh_packet = trace.mesh_packet
     finish_packet_lane = trace.finish_packet_lane
-    packets = F.camera_packets
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
     area_lights_packet = lights.area_lights_packet
@@ -226,7 +239,7 @@ def kernels_for(F: Features) -> SimpleNamespace:
                     p_key = g_key
                     one_s = g_s
                     if wp.static(not packets):
-                        lanes = g_end - g_s  # without trees: the pixel's samples one at a time
+                        lanes = g_end - g_s  # one by one (packets_for): the pixel's samples one at a time
                         g_s = g_end
                         break
                     if g_end - g_s >= PACKET:

@@ -44,16 +44,6 @@ class Features:
         return Features(**{f.name: getattr(self, f.name) or getattr(other, f.name) for f in fields(self)})
 
     @property
-    def camera_packets(self) -> bool:
-        """Whether camera rays go in packets: in every kernel. A thread takes up to 8 camera
-        samples at once (a pixel's, or the next pixels' too); they go through the analytic BVH and
-        the meshes together where the scene has them (shape by shape otherwise), and with Sobol
-        points and area lights their samples are drawn together (``sampling.sobol_packet``,
-        ``lights.area_lights_packet``). Packets first needed a tree (the analytic BVH or a mesh);
-        the lanes' vector sampling made them pay without one too (docs/benchmarks.md, levers)."""
-        return True
-
-    @property
     def key(self) -> str:
         on = [f.name for f in fields(self) if getattr(self, f.name)]
         return "+".join(on) if on else "basic"

@@ -38,7 +38,7 @@ from .build import DeviceScene, render_params
 from .camera import camera_data
 from .errors import RenderError
 from .film import Film, adaptive_counts
-from .integrator import kernels_for
+from .integrator import kernels_for, packets_for
 from .trace import PACKET
 from .memory import check_memory
 from .records import Features
@@ -214,17 +214,25 @@ class Renderer:
     """A scene built on one device, ready to render any number of times.
 
     ``features`` may name a superset of what the scene needs (e.g. ``Features.full()``) to run
-    a more general kernel; by default the kernel is specialised to the scene.
+    a more general kernel; by default the kernel is specialised to the scene. ``packets``: camera
+    rays 8 at a time (the CPU's default) or one by one (CUDA's), see
+    :func:`warprt.integrator.packets_for`; the images are the same bit for bit, only the speed
+    differs.
     """
 
-    def __init__(self, scene: Scene, device: str | None = None, features: Features | None = None):
+    def __init__(self, scene: Scene, device: str | None = None, features: Features | None = None,
+                 packets: bool | None = None):
         if not isinstance(scene, Scene):
             raise RenderError(f"render() needs a warprt.Scene, got {type(scene).__name__}")
+        if packets is not None and not isinstance(packets, bool):
+            raise RenderError(f"packets must be True, False or None (the device's choice), got {packets!r}")
         self.device = _warp.resolve_device(device)
+        #: camera rays in packets (the CPU's default) or one by one (CUDA's): the same images
+        self.packets = packets_for(self.device) if packets is None else packets
         self.scene = scene
         self.built = DeviceScene(scene, self.device)
         self.features = self.built.features if features is None else self.built.features.union(features)
-        self.kernel = kernels_for(self.features).render
+        self.kernel = kernels_for(self.features, self.packets).render
         self._loaded = None  # the kernel loaded on the device by compile()
         self._pool = WorkerPool("warprt-render")
         # seconds a sample of every pixel took in the last passes, per (workers, slices): sizes the
@@ -248,7 +256,7 @@ class Renderer:
         needed = self.built.features
         if needed.union(self.features) != self.features:
             self.features = self.features.union(needed)
-            self.kernel = kernels_for(self.features).render
+            self.kernel = kernels_for(self.features, self.packets).render
 
     def set_camera(self, camera) -> None:
         """Replace the camera (same or different resolution); no rebuild of anything else."""
@@ -505,7 +513,7 @@ class Renderer:
                 size = max(1, int(np.searchsorted(work_at, goal, side="right")) - 1 - done)
                 # with camera-ray packets, a pass short of the end takes whole packets (the
                 # integrator takes a pixel's samples PACKET at a time from the pass's first on)
-                if self.features.camera_packets and done + size < spp and size > PACKET:
+                if self.packets and done + size < spp and size > PACKET:
                     size -= size % PACKET
             else:
                 size = 1  # the renderer's first pass: one sample, to time one

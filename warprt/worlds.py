@@ -49,7 +49,7 @@ from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .errors import RenderError
 from .film import Film, FilmData
 from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_names, id_map, shaped
-from .integrator import kernels_for
+from .integrator import kernels_for, packets_for
 from .memory import check_memory
 from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
@@ -246,10 +246,11 @@ def _pose_kernels():
 
 
 @build_once
-def batch_kernel_for(F: Features):
+def batch_kernel_for(F: Features, packets: bool):
     """The batched render kernel for a feature set: the single-image kernel's per-pixel function
-    on each world's tables (one Warp module per feature set, compiled on first use)."""
-    render_pixel = kernels_for(F).pixel
+    on each world's tables (one Warp module per feature set and packet choice, compiled on first
+    use; ``packets``: :func:`warprt.integrator.packets_for` the device)."""
+    render_pixel = kernels_for(F, packets).pixel
 
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
@@ -444,7 +445,7 @@ class BatchRenderer:
             self.scene_data.bvh_prims = self._prims
         self.film = Film(cam.width, W * C * cam.height, dev)
         self._color = wp.zeros(pixels, dtype=wp.vec3, device=dev)
-        self._kernel = batch_kernel_for(self.features)
+        self._kernel = batch_kernel_for(self.features, packets_for(dev))
         self._loaded = False
         self._aov_bufs = None
         self._pool = WorkerPool("warprt-batch")
