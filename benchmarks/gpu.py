@@ -8,7 +8,9 @@ For each scene of ``benchmarks.peers`` (sampler ``sobol``) and each way of sampl
 seed: relative MSE, largest difference, the share of values that differ, bit-identical or not;
 the first build and compile on CUDA. With ``--timing``, whole ``render()`` calls on CUDA at 64 and
 1024 spp (min of 3 after a warm-up render at the same spp; the image is copied to the host in
-each) and the samples per second they make.
+each) and the samples per second they make. ``--packets on`` / ``off`` builds the CUDA kernel
+with camera rays in packets or one by one (default: the device's choice, one by one on CUDA:
+``warprt.integrator.packets_for``); the images are the same bit for bit either way.
 
 Needs a CUDA device (it prints one line and exits 2 without one); it never runs in CI. Scenes can
 run as separate processes at once (one ``--scenes`` each) so that their CUDA compiles overlap.
@@ -52,16 +54,18 @@ def compare(cpu: np.ndarray, gpu: np.ndarray) -> dict:
     }
 
 
-def study(key: str, device: str, modes, spp: int, seed: int, timing: bool, repeats: int) -> dict:
+def study(key: str, device: str, modes, spp: int, seed: int, timing: bool, repeats: int,
+          packets: bool | None = None) -> dict:
     scene = build_scene(key).with_settings(sampler="sobol")
     t0 = time.perf_counter()
-    gpu_r = warprt.Renderer(scene, device=device)
+    gpu_r = warprt.Renderer(scene, device=device, packets=packets)
     build_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     gpu_r.compile()
     compile_s = time.perf_counter() - t0
     cpu_r = warprt.Renderer(scene, device="cpu")
-    row = {"scene": SCENES[key].name, "build_s": build_s, "compile_s": compile_s, "modes": {}}
+    row = {"scene": SCENES[key].name, "packets": gpu_r.packets, "build_s": build_s, "compile_s": compile_s,
+           "modes": {}}
     for mode in modes:
         adaptive = mode == "adaptive"
         cpu = np.asarray(cpu_r.render(spp=spp, seed=seed, progress=False, adaptive=adaptive).image)
@@ -91,6 +95,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--timing", action="store_true", help="also time renders at 64 and 1024 spp")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--packets", choices=("auto", "on", "off"), default="auto",
+                    help="camera rays in packets on CUDA (on), one by one (off), or the device's choice (auto)")
     ap.add_argument("--json", type=Path, help="write every figure here")
     args = ap.parse_args(argv)
     keys = [k for k in args.scenes if k not in ", "]
@@ -111,7 +117,8 @@ def main(argv=None) -> int:
     result = {"device": wp.get_device(args.device).name, "warp": wp.config.version,
               "host": platform.node(), "spp": args.spp, "seed": args.seed, "scenes": {}}
     for key in keys:
-        row = study(key, args.device, modes, args.spp, args.seed, args.timing, args.repeats)
+        packets = {"auto": None, "on": True, "off": False}[args.packets]
+        row = study(key, args.device, modes, args.spp, args.seed, args.timing, args.repeats, packets)
         result["scenes"][key] = row
         print(key, json.dumps(row), flush=True)
     if args.json:
