@@ -139,16 +139,13 @@ def camera_frame_w(cam: CameraData, time: float) -> wp.vec3:
 @wp.func
 def project(cam: CameraData, p: wp.vec3, time: float) -> wp.vec2:
     """Raster position (pixels, y down) of world point p seen by the camera at ``time``."""
-    eye = cam.eye0 + (cam.eye1 - cam.eye0) * time
-    w = camera_frame_w(cam, time)
-    u = wp.normalize(wp.cross(cam.up, w))
-    v = wp.cross(w, u)
-    q = p - eye
-    zc = -wp.dot(q, w)
+    f = camera_frame(cam, time)
+    q = p - f.eye
+    zc = -wp.dot(q, f.w)
     if zc <= 0.0:
         return wp.vec2(0.0, 0.0)
-    us = wp.dot(q, u) * cam.dist / zc
-    vs = wp.dot(q, v) * cam.dist / zc
+    us = wp.dot(q, f.u) * cam.dist / zc
+    vs = wp.dot(q, f.v) * cam.dist / zc
     return wp.vec2((us + cam.right) / (2.0 * cam.right) * float(cam.width),
                    (cam.top - vs) / (2.0 * cam.top) * float(cam.height))
 
