@@ -454,7 +454,14 @@ class MeshTree:
         self.tris = wp.zeros(9 * n_faces, dtype=wp.float32, device=dev)
         self._info = wp.zeros(2, dtype=wp.int32, device=dev)  # the root, the largest leaf
         self.slots = slots
+        self.balls: wp.array | None = None  # interior balls (``interior_balls``), set by ``find_balls``
         self.refresh()
+
+    def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
+        """Find the mesh's interior balls (None when it does not qualify)."""
+        blocks = interior_balls(self.mesh, points, faces)
+        self.balls = None if blocks is None else wp.array(blocks.reshape(-1), dtype=wp.float32,
+                                                          device=self.mesh.device)
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
@@ -470,10 +477,17 @@ class MeshTree:
         """The instance record's fields for this tree."""
         if not self.usable:
             return dict(NO_TREE)
-        return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root)
+        return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
+                    balls=0, n_balls=0)
+
+    def ball_fields(self) -> dict:
+        """The instance record's ball fields (none when the mesh has no interior balls)."""
+        if self.balls is None or not self.usable:
+            return dict(balls=0, n_balls=0)
+        return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4)
 
 
-NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0)
+NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, balls=0, n_balls=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -694,6 +708,135 @@ def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root:
     """1 when a triangle blocks (o, o + t_max·d), 0 when none does, -1 to ask the nearest-hit
     loop (see above)."""
     ...
+
+# Interior balls of a closed mesh (shadow rays only): balls lying wholly inside the solid the
+# mesh bounds, each farther from every triangle than its radius. A shadow segment from a point
+# outside the solid that passes through such a ball enters the solid, so it crosses a triangle at
+# 0 < t < t_max, which ``mesh_tree_occluded`` would find and count as blocking (a triangle the
+# segment meets on the way in is never one it leaves): the ball answers "blocked" without the
+# traversal, the same answer. That needs the segment's origin outside the solid: a shading point
+# that a camera outside the solid sees (``build.DeviceScene`` keeps the balls of an instance only
+# while the camera and every light stay outside its box, and drops them for meshes whose points
+# move). A mesh qualifies when every edge is shared by exactly two triangles (closed), so that
+# the inside is well defined, and from BALLS_MIN_TRIANGLES triangles on (smaller trees are quick).
+# Centres: the points of a BALLS_GRID³ lattice over the mesh's box that three ray-parity counts
+# in different directions all put inside, each with its distance to the nearest triangle; the
+# farthest from the surface first, then greedily any centre not within 0.8 of a chosen ball's
+# radius, up to BALLS_MAX; each centre moved once to the best of its 5³ neighbours at half the
+# lattice step; radii shrunk by BALLS_SHRINK (the float32 ball test and the distances' rounding).
+BALLS_MIN_TRIANGLES = 512
+BALLS_GRID = 24
+BALLS_MAX = 32
+BALLS_SHRINK = 1.0e-3
+_PARITY_DIRS = ((0.5773503, 0.5773503, 0.5773503), (-0.2672612, 0.5345225, 0.8017837),
+                (0.7071068, -0.5, -0.5))
+
+
+@wp.kernel(module="warprt_accel", enable_backward=False)
+def interior_probe_kernel(mid: wp.uint64, pts: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    """out[i]: the distance from pts[i] to the mesh's nearest triangle where three ray-parity
+    counts (``_PARITY_DIRS``) all say inside; 0 elsewhere."""
+    i = wp.tid()
+    p = pts[i]
+    odd = int(1)
+    odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.5773503, 0.5773503, 0.5773503))
+    odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(-0.2672612, 0.5345225, 0.8017837))
+    odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.7071068, -0.5, -0.5))
+    out[i] = 0.0
+    if odd != 0:
+        q = wp.mesh_query_point_no_sign(mid, p, 1.0e30)
+        if q.result:
+            out[i] = wp.length(wp.mesh_eval_position(mid, q.face, q.u, q.v) - p)
+
+
+def closed_surface(faces: np.ndarray) -> bool:
+    """Whether every edge of the triangles ``faces`` (F, 3) is shared by exactly two of them."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    key = e[:, 0] * (int(f.max()) + 1) + e[:, 1]
+    _, counts = np.unique(key, return_counts=True)
+    return bool(len(f) > 0 and np.all(counts == 2))
+
+
+def _probe(mesh: "wp.Mesh", pts: np.ndarray) -> np.ndarray:
+    out = wp.zeros(len(pts), dtype=float, device=mesh.device)
+    wp.launch(interior_probe_kernel, dim=len(pts), device=mesh.device,
+              inputs=[mesh.id, wp.array(pts.astype(np.float32), dtype=wp.vec3, device=mesh.device), out])
+    return out.numpy().astype(np.float64)
+
+
+def interior_balls(mesh: "wp.Mesh", points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
+    """The interior balls of a closed mesh (see above) as blocks of 8: float32 (B, 4, 8) holding
+    the centres' x, y, z and the squared radii (padding: radius² -1, never met); None when the
+    mesh does not qualify or no centre is inside."""
+    if len(faces) < BALLS_MIN_TRIANGLES or not closed_surface(faces):
+        return None
+    lo, hi = points.min(axis=0).astype(np.float64), points.max(axis=0).astype(np.float64)
+    axes = [np.linspace(lo[a], hi[a], BALLS_GRID + 2)[1:-1] for a in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    r = _probe(mesh, grid)
+    inside = r > 0.0
+    if not inside.any():
+        return None
+    c, r = grid[inside], r[inside]
+    order = np.argsort(-r, kind="stable")
+    c, r = c[order], r[order]
+    covered = np.zeros(len(c), dtype=bool)
+    chosen = []
+    for i in range(len(c)):
+        if len(chosen) == BALLS_MAX:
+            break
+        if not covered[i]:
+            chosen.append(i)
+            covered |= np.linalg.norm(c - c[i], axis=1) < 0.8 * r[i]
+    c, r = c[chosen], r[chosen]
+    # each centre to the best of its 5 x 5 x 5 neighbours at half the lattice step
+    step = (hi - lo) / (BALLS_GRID + 1) * 0.5
+    off = np.stack(np.meshgrid(*[np.arange(-2, 3)] * 3, indexing="ij"), -1).reshape(-1, 3) * step
+    cand = (c[:, None, :] + off[None]).reshape(-1, 3)
+    rc = _probe(mesh, cand).reshape(len(c), -1)
+    best = rc.argmax(axis=1)
+    c = cand.reshape(len(c), -1, 3)[np.arange(len(c)), best]
+    r = rc[np.arange(len(c)), best] * (1.0 - BALLS_SHRINK)
+    blocks = np.zeros(((len(r) + 7) // 8, 4, 8), dtype=np.float32)
+    blocks[:, 3, :] = -1.0
+    for k in range(len(r)):
+        blocks[k // 8, :3, k % 8] = c[k]
+        blocks[k // 8, 3, k % 8] = np.float32(r[k]) * np.float32(r[k])
+    return blocks
+
+
+# Whether the segment (o, o + t_max·d), 0 < t < t_max, passes through one of the n balls (blocks of
+# 8: x, y, z, radius²): the point of the ray nearest each centre, if within the segment, closer
+# than the radius. Object space, d not necessarily of unit length. 0 on CUDA (no balls there).
+_BALLS = r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+const float* S = (const float*)balls;
+const float inv = 1.0f / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+const v8 ox = o[0], oy = o[1], oz = o[2], dx = d[0], dy = d[1], dz = d[2];
+for (int b = 0; b < n; b += 8) {
+    v8 cx, cy, cz, r2;
+    __builtin_memcpy(&cx, S + 4 * b, 32); __builtin_memcpy(&cy, S + 4 * b + 8, 32);
+    __builtin_memcpy(&cz, S + 4 * b + 16, 32); __builtin_memcpy(&r2, S + 4 * b + 24, 32);
+    cx -= ox; cy -= oy; cz -= oz;
+    const v8 tc = (cx * dx + cy * dy + cz * dz) * inv;
+    const v8 px = cx - tc * dx, py = cy - tc * dy, pz = cz - tc * dz;
+    const i8 h = (tc > 0.0f) & (tc < t_max) & (px * px + py * py + pz * pz < r2);
+    if (__builtin_reduce_or(h)) return 1;
+}
+#endif
+return 0;
+"""
+
+
+@wp.func_native(_BALLS)
+def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: float) -> int:
+    """1 when (o, o + t_max·d) passes through one of the n interior balls at ``balls`` (see above)."""
+    ...
+
 
 # A packet of up to 8 rays (one pixel's camera rays, in the mesh's object space) through the same
 # tree copy together: each node's two boxes tested for the 8 lanes as clang vectors, a child

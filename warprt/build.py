@@ -72,6 +72,7 @@ class DeviceScene:
         n_normals = 0
         self.instance_assets: list[tuple] = []  # asset key of each mesh instance
         self.shape_ids: list[tuple[int, int]] = []  # (kind, row in its table) for each scene shape
+        self._balls_given = False  # whether an instance record holds interior balls (refresh_balls)
 
         for i, s in enumerate(scene.shapes):
             mi = mat_index[s.material]
@@ -88,6 +89,8 @@ class DeviceScene:
                                            indices=wp.array(f32.reshape(-1), dtype=wp.int32, device=dev),
                                            **({"bvh_leaf_size": 1} if dev.is_cpu else {}))
                             tree = MeshTree(mesh, len(f32)) if dev.is_cpu else None
+                            if tree is not None:
+                                tree.find_balls(v32, f32)  # interior balls for shadow rays (accel.py)
                             self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
                         mesh, vn, tree = self.assets[key]
                         trees.append(tree)
@@ -139,6 +142,8 @@ class DeviceScene:
         d.insts = table(InstRec, ins, dev)
         if ins:  # each instance's object and world boxes (rays that miss the box skip the mesh)
             wp.launch(instance_box_kernel(), dim=len(ins), inputs=[d.insts], device=dev)
+        self.data = d
+        self.refresh_balls()
         d.normals = wp.array(np.concatenate(normals) if normals else np.zeros((1, 3), np.float32),
                              dtype=wp.vec3, device=dev)
         d.mats = table(MatRec, [dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
@@ -167,6 +172,37 @@ class DeviceScene:
                 rows["samples"][j] = n
         self.data.alights.assign(rows)
 
+    def refresh_balls(self) -> None:
+        """Give each mesh instance its asset's interior balls (``accel.interior_balls``) where a
+        shadow ray's origin cannot be inside the solid: while the camera's eye (with its lens and
+        motion) and every light stay outside the instance's box, a shading point the camera sees
+        is outside the solid. An asset whose points were moved (``set_mesh_points``) has none."""
+        d = self.data
+        if d.n_inst == 0:
+            return
+        trees = [self.assets[key][2] for key in self.instance_assets]
+        if not any(t is not None and t.balls is not None for t in trees) and not self._balls_given:
+            return  # (none to give, and none given)
+        self._balls_given = False
+        regions = _light_regions(self.scene)
+        cam = self.scene.camera
+        if cam.keyframes:
+            regions = None  # (a keyframed path: not checked; no balls)
+        elif regions is not None:
+            eyes = np.array([cam.eye] + ([cam.eye_end] if cam.eye_end is not None else []), dtype=np.float64)
+            pad = float(cam.aperture) + 1e-6 * (1.0 + float(np.abs(eyes).max()))
+            regions.append((eyes.min(axis=0) - pad, eyes.max(axis=0) + pad))
+        rows = d.insts.numpy()
+        for i, tree in enumerate(trees):
+            fields = dict(balls=0, n_balls=0)
+            if tree is not None and regions is not None:
+                lo, hi = rows["lo"][i], rows["hi"][i]
+                if not any(np.all(rlo <= hi) and np.all(lo <= rhi) for rlo, rhi in regions):
+                    fields = tree.ball_fields()
+            rows["balls"][i], rows["n_balls"][i] = fields["balls"], fields["n_balls"]
+            self._balls_given |= fields["n_balls"] > 0
+        d.insts.assign(rows)
+
     def set_mesh_points(self, shape_index: int, points) -> None:
         """Move the vertices of the mesh asset behind ``scene.shapes[shape_index]`` (every
         instance of that asset follows) and refit its BVH; smooth normals are recomputed."""
@@ -184,6 +220,9 @@ class DeviceScene:
         if tree is not None:
             tree.refresh()  # same topology and root: the instance records stay valid
         wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
+        if tree is not None and tree.balls is not None:
+            tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
+            self.refresh_balls()
         if any(isinstance(s, Mesh) and s.smooth for s in self.scene.shapes):
             faces = mesh.indices.numpy().reshape(-1, 3)
             vn = vertex_normals(mesh.points.numpy(), faces)
@@ -221,6 +260,29 @@ class DeviceScene:
         d.bvh_nodes = forest_nodes([tree], dev)
         tags = np.array([(kind.tag, j) for kind, j, _ in prims], dtype=np.int32)
         d.bvh_prims = wp.array(tags[tree[0]], dtype=wp.vec2i, device=dev)
+
+
+def _light_regions(scene: Scene) -> list | None:
+    """The boxes (lo, hi) holding every light's emitting points (area lights over their
+    motion); None when one is unbounded (a light that no box holds). Directional lights have no
+    point in the scene."""
+    regions = []
+    for light in scene.lights:
+        if isinstance(light, DirectionalLight):
+            continue
+        if isinstance(light, PointLight):
+            p = np.asarray(light.position, dtype=np.float64)
+            regions.append((p, p))
+            continue
+        if not is_area_light(light):
+            return None
+        surface = light.shape()
+        kind = BY_CLASS[type(surface)]
+        if kind.bounds is None:
+            return None
+        lo, hi = kind.bounds(kind.row(surface, 0))
+        regions.append((np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)))
+    return regions
 
 
 def point_light_row(light) -> dict:

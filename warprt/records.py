@@ -176,6 +176,8 @@ class InstRec:
     tree_kids: wp.uint64
     tree_tris: wp.uint64
     tree_root: int
+    balls: wp.uint64  # the asset's interior balls (accel.interior_balls) while shadow rays may use them
+    n_balls: int  # 0: none (CUDA, a mesh that does not qualify, or build.DeviceScene's rules)
 
 
 @wp.struct

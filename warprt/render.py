@@ -263,6 +263,7 @@ class Renderer:
         self.scene = self.scene.replace(camera=camera)
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
+        self.built.refresh_balls()  # the interior balls' rule looks at where the camera is
         self._light_samples = None  # what the camera sees changes the split
         self._sample_time.clear()  # and the time per sample
         if camera.moves and not self.features.motion or camera.aperture > 0 and not self.features.lens:

@@ -21,8 +21,8 @@ from types import SimpleNamespace
 import warp as wp
 
 from .accel import (
-    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, lane, lane_i, mesh_tree_occluded, mesh_tree_packet,
-    mesh_tree_ray, packet_node, safe_inverse, slab,
+    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, lane, lane_i, mesh_balls_hit, mesh_tree_occluded,
+    mesh_tree_packet, mesh_tree_ray, packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
@@ -1172,6 +1172,9 @@ def make_trace(F: Features) -> SimpleNamespace:
         pose = instance_pose(scene, i, time)
         o_obj = to_object(pose, o)
         d_obj = dir_to_object(pose, d)
+        if scene.insts[i].n_balls > 0:  # through an interior ball: it enters the solid (accel.py)
+            if mesh_balls_hit(scene.insts[i].balls, scene.insts[i].n_balls, o_obj, d_obj, t_max) != 0:
+                return True
         occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids, scene.insts[i].tree_tris,
                                  scene.insts[i].tree_root, o_obj, d_obj, t_max)
         if occ < 0:
