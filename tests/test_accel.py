@@ -989,6 +989,14 @@ def test_shadow_rays_use_interior_balls_only_where_no_shading_point_is_inside_th
     assert r.render(spp=4, seed=3, progress=False).image.tobytes() == with_balls.tobytes()
     r.built.refresh_balls()
     assert _n_balls(r) > 0
+    # the same through the all-features kernel, whose shadow rays take ``transmittance``
+    full = warprt.Renderer(scene, device="cpu", features=warprt.Features.full())
+    assert _n_balls(full) > 0
+    with_balls = full.render(spp=2, seed=3, progress=False).image
+    rows = full.built.data.insts.numpy()
+    rows["n_balls"] = 0
+    full.built.data.insts.assign(rows)
+    assert full.render(spp=2, seed=3, progress=False).image.tobytes() == with_balls.tobytes()
 
     r.set_camera(dataclasses.replace(scene.camera, eye=(0.0, 0.2, 0.3)))  # inside the mesh's box
     assert _n_balls(r) == 0

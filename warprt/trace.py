@@ -1052,7 +1052,10 @@ def make_trace(F: Features) -> SimpleNamespace:
             if wp.max(kt) <= 0.0:
                 # opaque: any triangle the ray meets and does not leave blocks it (the CPU's tree
                 # copy stops at the first); else the nearest-hit loop, which steps over the face
-                # the ray leaves
+                # the ray leaves; first the interior balls (accel.py: a segment through one enters the solid)
+                if scene.insts[i].n_balls > 0:
+                    if mesh_balls_hit(scene.insts[i].balls, scene.insts[i].n_balls, o_obj, d_obj, t_max) != 0:
+                        return wp.vec3(0.0, 0.0, 0.0)
                 occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids,
                                          scene.insts[i].tree_tris, scene.insts[i].tree_root, o_obj, d_obj, t_max)
                 if occ < 0:
