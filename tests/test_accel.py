@@ -1019,3 +1019,150 @@ def test_shadow_rays_use_interior_balls_only_where_no_shading_point_is_inside_th
     assert _n_balls(r) == 0
 
     assert int(warprt.BatchRenderer(scene, worlds=2, device="cpu").tables.insts.numpy()["n_balls"].max()) == 0
+
+
+# --- escaping faces (accel.escape_sides): shadow rays leaving a face with the mesh behind it ------
+
+
+def _escape_meshes():
+    import trimesh
+
+    from benchmarks.peers import bumpy_torus
+
+    ico = trimesh.creation.icosphere(subdivisions=3, radius=0.45)
+    iv, fi = np.asarray(ico.vertices, np.float32), np.asarray(ico.faces, np.int32)
+    tv, tf = bumpy_torus(48, 24, major=0.55, minor=0.2)
+    half = trimesh.creation.uv_sphere(radius=0.5, count=[24, 24])
+    hv = np.asarray(half.vertices, np.float64)
+    hf = np.asarray(half.faces)
+    hf = hf[(hv[hf][:, :, 1] <= 1e-9).all(axis=1)]  # the lower half: an open bowl
+    return {"icosphere": (iv, fi), "icosphere wound inwards": (iv, fi[:, ::-1].copy()),
+            "torus": (tv.astype(np.float32), tf.astype(np.int32)), "bumpy sphere": _bumpy_sphere(),
+            "bowl": (hv.astype(np.float32), hf.astype(np.int32))}
+
+
+def test_escaping_faces_are_those_with_the_whole_mesh_behind_them():
+    """``accel.escape_sides``: a convex mesh's faces all escape on their outer side (the front, or
+    the back when wound inwards), a torus's outer half and no inner face, a bowl's outside and
+    not its inside, and a bumpy sphere's and a box's (its top with one vertex raised) faces only
+    where no vertex rises above their plane (float64 brute force)."""
+    m = _escape_meshes()
+    assert np.all(accel.escape_sides(*m["icosphere"]) == 1)
+    assert np.all(accel.escape_sides(*m["icosphere wound inwards"]) == 2)
+    assert np.all(accel.escape_sides(*m["bowl"]) == 1)
+    v, f = m["torus"]
+    side = accel.escape_sides(v, f)
+    centre = v[f].astype(np.float64).mean(axis=1)
+    outer = np.hypot(centre[:, 0], centre[:, 2]) > 0.55
+    assert np.all(side[~outer] == 0) and outer.mean() > 0.4 and side[outer].mean() > 0.9
+    import trimesh
+
+    # a box's flat top, finely cut, with one inner vertex raised by 1e-3: the faces of the top
+    # have it in front of them, and it is the extreme vertex only in a narrow cone of directions
+    box = trimesh.creation.box(extents=(1.0, 0.5, 1.0))
+    bv, bf = trimesh.remesh.subdivide(*trimesh.remesh.subdivide(box.vertices, box.faces))
+    bv = np.asarray(bv, np.float64)
+    raised = np.flatnonzero((np.abs(bv[:, 1] - 0.25) < 1e-9) & (np.abs(bv[:, 0]) < 0.4) & (np.abs(bv[:, 2]) < 0.4))[0]
+    bv[raised, 1] += 1e-3
+    for v, f in (m["bumpy sphere"], (bv.astype(np.float32), np.asarray(bf, np.int32))):
+        side = accel.escape_sides(v, f)
+        t = v[f].astype(np.float64)
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        n = n / np.where(length > 0, length, 1.0)
+        h = n @ v.T.astype(np.float64) - np.einsum("fj,fj->f", n, t[:, 0])[:, None]
+        tol = accel.ESCAPE_TOL * float(np.abs(v).max())
+        np.testing.assert_array_equal(side == 1, (h.max(axis=1) <= tol) & (length[:, 0] > 0))
+        assert 0 < (side == 1).mean() < 1 and not (side == 2).any()
+
+
+@pytest.mark.parametrize("name", ["icosphere", "icosphere wound inwards", "torus", "bumpy sphere", "bowl"])
+def test_shadow_rays_leaving_an_escaping_face_meet_no_triangle_of_its_mesh(name):
+    """A ray from a point of an escaping face, spawned off it to its escaping side as the renderer
+    spawns shadow rays, in any direction into that side (grazing ones too) and of any length,
+    meets no triangle of the mesh (``accel.mesh_tree_occluded``, the renderer's own test); the
+    same rays from the faces that do not escape on that side are blocked now and then."""
+    v, f = _escape_meshes()[name]
+    from warprt.geometry import SPAWN_ABS, SPAWN_REL
+
+    side = accel.escape_sides(v, f)
+    side = np.zeros(len(f), np.uint8) if side is None else side
+    tri = v[f].astype(np.float64)
+    rng = np.random.default_rng(13)
+    n_rays = 4000
+    face = rng.integers(0, len(f), n_rays)
+    bary = rng.dirichlet([1.5, 1.5, 1.5], n_rays)
+    p = np.einsum("nk,nkj->nj", bary, tri[face])
+    ng = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    # the side the ray leaves into, either: into the escaping side, it must meet nothing
+    s = rng.choice([-1.0, 1.0], n_rays)
+    escaping = ((s > 0) & (side[face] & 1 != 0)) | ((s < 0) & (side[face] & 2 != 0))
+    g = ng * s[:, None]
+    mag = np.maximum(np.abs(tri[face]).max(axis=1), np.abs(p))
+    o = p + g * (np.sum(np.abs(g) * mag, axis=1) * SPAWN_REL + SPAWN_ABS)[:, None]
+    d = rng.normal(size=(n_rays, 3))
+    d -= np.sum(d * g, axis=1)[:, None] * g  # in the plane, then tilted up: grazing to steep
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    up = rng.choice([1e-4, 1e-2, 0.3, 1.0, 10.0], n_rays)
+    d = d + g * up[:, None]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t_max = rng.choice([0.05, 0.5, 5.0], n_rays)
+    mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
+    tree = accel.MeshTree(mesh, len(f))
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+    def k_occ(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, o: wp.array(dtype=wp.vec3),
+              d: wp.array(dtype=wp.vec3), t_max: wp.array(dtype=float), out: wp.array(dtype=int)):
+        i = wp.tid()
+        out[i] = accel.mesh_tree_occluded(nodes, kids, tris, root, o[i], d[i], t_max[i])
+
+    out = wp.zeros(n_rays, dtype=int, device="cpu")
+    wp.launch(k_occ, dim=n_rays, device="cpu", inputs=[
+        tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, wp.array(o.astype(np.float32), dtype=wp.vec3,
+                                                                             device="cpu"),
+        wp.array(d.astype(np.float32), dtype=wp.vec3, device="cpu"), wp.array(t_max.astype(np.float32), dtype=float,
+                                                                              device="cpu"), out])
+    blocked = out.numpy()
+    assert (blocked >= 0).all()
+    assert blocked[escaping].sum() == 0, f"{int(blocked[escaping].sum())} rays from escaping faces blocked"
+    assert blocked[~escaping].sum() > 20  # (the same construction finds the mesh on the other sides)
+    assert escaping.mean() > (0.02 if name == "bumpy sphere" else 0.2)  # (0.03 there: 6% of its faces)
+
+
+def test_shadow_rays_skip_the_mesh_whose_escaping_face_they_leave_and_the_image_stays_the_same():
+    """A scene whose meshes have escaping faces (an icosphere, a torus, and a bowl seen from
+    inside, where its rim shadows its floor; a small ball between the light and the torus's top)
+    renders the same bit for bit with the escaping faces as without them (records' ``escape``
+    zeroed), lit by a rectangle light and a point light; moving a mesh's points drops its faces."""
+    m = _escape_meshes()
+    iv, fi = m["icosphere"]
+    tv, tf = m["torus"]
+    bv, bf = m["bowl"]
+    scene = warprt.Scene(
+        camera=warprt.Camera(eye=(0.2, 2.4, 2.6), look_at=(0.0, 0.2, 0.0), fov=55.0, width=64, height=48),
+        shapes=(warprt.Plane(point=(0.0, -0.5, 0.0), normal=(0.0, 1.0, 0.0), material="ground"),
+                warprt.Mesh(vertices=iv, faces=fi, material="a", transform=warprt.Transform(translate=(0.9, 0.0, 0.2))),
+                warprt.Mesh(vertices=tv, faces=tf, material="a", transform=warprt.Transform(translate=(-0.7, -0.3, 0.0))),
+                warprt.Mesh(vertices=bv, faces=bf, material="a", transform=warprt.Transform(translate=(0.1, 0.0, -0.9))),
+                warprt.Mesh(vertices=iv * 0.3, faces=fi, material="a",
+                            transform=warprt.Transform(translate=(-0.6, 0.5, 0.1)))),
+        materials={"ground": warprt.Material(kd=0.6, ka=0.0), "a": warprt.Material(kd=0.7, ks=0.2, p=20.0, ka=0.0)},
+        lights=(warprt.RectLight(corner=(-1.0, 2.0, -0.8), edge1=(1.6, 0.0, 0.0), edge2=(0.0, 0.3, 1.2), radiance=3.0),
+                warprt.PointLight(position=(1.5, 2.5, -1.5), intensity=2.0)))
+    r = warprt.Renderer(scene, device="cpu")
+    rows = r.built.data.insts.numpy()
+    assert np.count_nonzero(rows["escape"]) == 4
+    with_faces = r.render(spp=4, seed=5, progress=False).image
+    rows["escape"] = 0
+    r.built.data.insts.assign(rows)
+    without = r.render(spp=4, seed=5, progress=False).image
+    assert without.tobytes() == with_faces.tobytes()
+    assert float(without[..., 0].std()) > 0.01  # (a lit, shadowed image)
+    r.built.refresh_balls()
+    r2 = warprt.Renderer(scene, device="cpu")
+    r2.set_mesh_points(2, tv * 1.01)
+    assert r2.built.data.insts.numpy()["escape"][1] == 0
+    r2.update(scene)  # the moved asset is reused: still none
+    assert r2.built.data.insts.numpy()["escape"][1] == 0

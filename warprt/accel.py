@@ -455,13 +455,16 @@ class MeshTree:
         self._info = wp.zeros(2, dtype=wp.int32, device=dev)  # the root, the largest leaf
         self.slots = slots
         self.balls: wp.array | None = None  # interior balls (``interior_balls``), set by ``find_balls``
+        self.escape: wp.array | None = None  # escaping faces (``escape_sides``), set by ``find_balls``
         self.refresh()
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
-        """Find the mesh's interior balls (None when it does not qualify)."""
+        """Find the mesh's interior balls and escaping faces (None where it has none)."""
         blocks = interior_balls(self.mesh, points, faces)
         self.balls = None if blocks is None else wp.array(blocks.reshape(-1), dtype=wp.float32,
                                                           device=self.mesh.device)
+        sides = escape_sides(points, faces)
+        self.escape = None if sides is None else wp.array(sides, dtype=wp.uint8, device=self.mesh.device)
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
@@ -478,7 +481,7 @@ class MeshTree:
         if not self.usable:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
-                    balls=0, n_balls=0)
+                    balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr)
 
     def ball_fields(self) -> dict:
         """The instance record's ball fields (none when the mesh has no interior balls)."""
@@ -487,7 +490,7 @@ class MeshTree:
         return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4)
 
 
-NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, balls=0, n_balls=0)
+NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, balls=0, n_balls=0, escape=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -835,6 +838,60 @@ return 0;
 @wp.func_native(_BALLS)
 def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: float) -> int:
     """1 when (o, o + t_max·d) passes through one of the n interior balls at ``balls`` (see above)."""
+    ...
+
+
+# Escaping faces (shadow rays from a mesh's own surface): a face of a mesh whose every vertex lies
+# behind its plane (or on it, within ESCAPE_TOL of the mesh's largest coordinate: the float32
+# rounding of a planar quad's fourth corner) has the whole mesh behind it, so a shadow ray that
+# leaves a point of that face towards its front can meet no triangle of the mesh at t > 0: its
+# origin is spawned in front of the plane (by far more than ESCAPE_TOL) and it only moves away.
+# ``escape_sides`` marks each face 1 (every vertex behind: rays towards the front escape), 2
+# (every vertex in front: rays towards the back escape) or 0; ``lights`` skips the mesh for such
+# a shading point's shadow rays (``ShadePacket.skip``). A convex mesh escapes everywhere; the
+# outer half of a torus too. Vertices far from the plane reject most faces of a large mesh
+# against a few hundred extreme vertices first; a face is accepted only against every vertex,
+# within ESCAPE_BUDGET vertex tests (past it, no face escapes).
+ESCAPE_TOL = 5.0e-7
+ESCAPE_BUDGET = 50_000_000
+
+
+def escape_sides(points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
+    """Each face's escaping side (see above) as uint8, or None when none escapes."""
+    v = np.asarray(points, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return None
+    tol = ESCAPE_TOL * float(np.abs(v).max())
+    a = v[f[:, 0]]
+    n = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
+    length = np.linalg.norm(n, axis=1)
+    n = n / np.where(length > 0.0, length, 1.0)[:, None]
+    off = np.einsum("fj,fj->f", n, a)
+    # a first verdict against the extreme vertices in 256 directions (and the box's corners)
+    dirs = np.random.default_rng(0).normal(size=(256, 3))
+    ext = np.unique(np.argmax(v @ dirs.T, axis=0).tolist() + np.argmin(v @ dirs.T, axis=0).tolist())
+    h = n @ v[ext].T - off[:, None]
+    side = np.where(h.max(axis=1) <= tol, 1, 0) | np.where(h.min(axis=1) >= -tol, 2, 0)
+    side[length <= 0.0] = 0
+    cand = np.flatnonzero(side)
+    if len(cand) == 0 or len(cand) * len(v) > ESCAPE_BUDGET:
+        return None
+    for lo in range(0, len(cand), 256):  # every vertex for the faces still in the running
+        c = cand[lo:lo + 256]
+        h = n[c] @ v.T - off[c, None]
+        side[c] &= np.where(h.max(axis=1) <= tol, 1, 0) | np.where(h.min(axis=1) >= -tol, 2, 0)
+    return side.astype(np.uint8) if side.any() else None
+
+
+_ESCAPE_SIDE = r"""
+return escape == 0 ? 0 : (int)((const unsigned char*)escape)[face];
+"""
+
+
+@wp.func_native(_ESCAPE_SIDE)
+def escape_side(escape: wp.uint64, face: int) -> int:
+    """Face ``face``'s escaping side (``escape_sides``) from the mesh's array at ``escape`` (0: none)."""
     ...
 
 

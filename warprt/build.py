@@ -220,8 +220,14 @@ class DeviceScene:
         if tree is not None:
             tree.refresh()  # same topology and root: the instance records stay valid
         wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
-        if tree is not None and tree.balls is not None:
+        if tree is not None and (tree.balls is not None or tree.escape is not None):
             tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
+            tree.escape = None  # nor its escaping faces
+            rows = self.data.insts.numpy()
+            for i, k in enumerate(self.instance_assets):
+                if k == key:
+                    rows["escape"][i] = 0
+            self.data.insts.assign(rows)
             self.refresh_balls()
         if any(isinstance(s, Mesh) and s.smooth for s in self.scene.shapes):
             faces = mesh.indices.numpy().reshape(-1, 3)

@@ -37,12 +37,12 @@ from .camera import camera_frame, camera_packet, camera_ray
 from .film import FilmData, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights
-from .records import KIND_NONE, CameraData, Features, RenderParams, SceneData
+from .records import KIND_MESH, KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import (
     SAMPLER_SOBOL, frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, sobol_packet, square_to_cos_power,
 )
 from .shading import fresnel, mul_sat, reflect, refract
-from .accel import PacketU, lane, lane_i
+from .accel import PacketU, escape_side, lane, lane_i
 from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketF, PacketI, make_trace
 
 STACK_SIZE = 16
@@ -397,6 +397,13 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 origin = spawn_origin(h.p, ng, h.mag, 1.0)
                                 L = local  # the local light so far (the lights are added below)
                                 lit = lit | (1 << k)
+                                if wp.static(F.meshes):
+                                    # on an escaping face of a mesh its shadow rays skip that mesh
+                                    # (accel.escape_sides: they leave towards the viewer's side)
+                                    if h.kind == KIND_MESH:
+                                        side = escape_side(scene.insts[h.index].escape, h.face)
+                                        if (front and side & 1 != 0) or (not front and side & 2 != 0):
+                                            sp_.skip[k] = h.index + 1
                                 sp_.px[k] = h.p[0]
                                 sp_.py[k] = h.p[1]
                                 sp_.pz[k] = h.p[2]

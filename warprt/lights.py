@@ -58,6 +58,7 @@ class ShadePacket:
     time: PacketF
     key: PacketU
     sample: PacketI
+    skip: PacketI  # i + 1 where the lane's point is on an escaping face of mesh instance i (trace.occluded_packet)
     glossy: int  # 1 when a lane's material has a specular colour (ks > 0); 0: every lobe is kd · n·l
 
 
@@ -415,7 +416,8 @@ def make_lights(F: Features) -> SimpleNamespace:
                     # the shadow rays of the lanes together (``shadow``'s set-up, then
                     # ``occluded_packet``; without secondary rays nothing is transparent)
                     test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
-                    lit = go & ~occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time)
+                    shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, sp.skip)
+                    lit = go & ~shut
                     for k in range(lanes):
                         if (lit >> k) & 1 == 0:
                             continue
@@ -490,7 +492,8 @@ def make_lights(F: Features) -> SimpleNamespace:
                 go = go | (1 << k)
             if go == 0:
                 continue
-            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time)
+            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time,
+                                      sp.skip)
             lit = go & ~blocked
             # each lit lane's mul_sat(1, mul_sat(I, f)), the 8 at once
             inv_sq = int(0)

@@ -86,6 +86,7 @@ class Hit:
     ns: wp.vec3  # unit shading normal (not flipped)
     mag: wp.vec3  # per-component magnitude bound of the coordinates p was computed from (spawn offsets)
     mat: int
+    face: int  # a mesh's triangle (0 for other kinds)
 
 
 @wp.struct
@@ -631,6 +632,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         h.t = t
         h.kind = KIND_MESH
         h.index = index
+        h.face = face
         mid = scene.insts[index].mesh
         pose = instance_pose(scene, index, time)
         mesh = wp.mesh_get(mid)
@@ -1187,14 +1189,16 @@ def make_trace(F: Features) -> SimpleNamespace:
 
     @wp.func
     def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
-                        dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF) -> int:
+                        dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, skip: PacketI) -> int:
         """The lanes (of the bit mask ``lanes``, all below n) whose shadow ray (o, d) over (0, t_max)
         a surface blocks, in a kernel without transparent materials, where ``transmittance`` is 0
         or 1: the spheres (without the analytic BVH), planes and BVH for all lanes at once
         (``sphere_hits_packet``, ``plane_hits_packet``, ``packet_node``, ``rect_hits_packet``),
         the mesh instances' boxes for all lanes at once (``box_hits_packet``), then each lane in
         a box through its triangles. A lane's answer is its own: the tests are the scalar ones,
-        and a node test looser than the scalar traversal's only adds leaves to test."""
+        and a node test looser than the scalar traversal's only adds leaves to test. A lane k with
+        skip[k] = i + 1 leaves an escaping face of instance i (``accel.escape_sides``), whose
+        triangles its ray cannot meet: that instance is not tested for it (0: none skipped)."""
         blocked = int(0)
         left = lanes
         use_bvh = scene.bvh_root >= 0
@@ -1302,7 +1306,13 @@ def make_trace(F: Features) -> SimpleNamespace:
         if wp.static(F.meshes):
             # each instance's box for all lanes at once, then each lane in it through the triangles
             for i in range(scene.n_inst):
-                inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left, ox, oy, oz, dx, dy, dz, 0.0, t_max)
+                # (a lane whose ray leaves an escaping face of this instance skips it: skip = i + 1)
+                own = int(0)
+                for k in range(n):
+                    if skip[k] == i + 1:
+                        own = own | (1 << k)
+                inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left & ~own, ox, oy, oz, dx, dy, dz, 0.0,
+                                         t_max)
                 if inside == 0:
                     continue
                 for k in range(n):
