@@ -868,19 +868,37 @@ def escape_sides(points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
     length = np.linalg.norm(n, axis=1)
     n = n / np.where(length > 0.0, length, 1.0)[:, None]
     off = np.einsum("fj,fj->f", n, a)
-    # a first verdict against the extreme vertices in 256 directions (and the box's corners)
-    dirs = np.random.default_rng(0).normal(size=(256, 3))
-    ext = np.unique(np.argmax(v @ dirs.T, axis=0).tolist() + np.argmin(v @ dirs.T, axis=0).tolist())
-    h = n @ v[ext].T - off[:, None]
-    side = np.where(h.max(axis=1) <= tol, 1, 0) | np.where(h.min(axis=1) >= -tol, 2, 0)
-    side[length <= 0.0] = 0
+
+    def verdict(faces_, pts):  # 1: every point of pts (per face, or shared) behind, 2: in front
+        h = np.einsum("fj,fkj->fk", n[faces_], pts) if pts.ndim == 3 else n[faces_] @ pts.T
+        h = h - off[faces_, None]
+        return np.where(h.max(axis=1) <= tol, 1, 0) | np.where(h.min(axis=1) >= -tol, 2, 0)
+
+    side = np.where(length > 0.0, 3, 0)
+    # first verdicts: each face's neighbours across its edges (their third corners: a concave
+    # edge rejects both faces), then the extreme vertices in 64 directions
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    third = np.concatenate([f[:, 2], f[:, 0], f[:, 1]])
+    owner = np.tile(np.arange(len(f)), 3)
+    key = np.minimum(e[:, 0], e[:, 1]) * len(v) + np.maximum(e[:, 0], e[:, 1])
+    order = np.argsort(key, kind="stable")
+    pair = np.flatnonzero(key[order[1:]] == key[order[:-1]])
+    p, q = order[pair], order[pair + 1]
+    for a_, b_ in ((p, q), (q, p)):
+        np.bitwise_and.at(side, owner[a_], verdict(owner[a_], v[third[b_]][:, None, :]))
+    dirs = np.random.default_rng(0).normal(size=(64, 3))
+    proj = dirs @ v.T
+    ext = np.unique(np.concatenate([np.argmax(proj, axis=1), np.argmin(proj, axis=1)]))
+    for lo in range(0, len(f), 16384):  # (in pieces: a face by a hundred vertices each)
+        c = np.flatnonzero(side[lo:lo + 16384]) + lo
+        if len(c):
+            side[c] &= verdict(c, v[ext])
     cand = np.flatnonzero(side)
     if len(cand) == 0 or len(cand) * len(v) > ESCAPE_BUDGET:
         return None
     for lo in range(0, len(cand), 256):  # every vertex for the faces still in the running
         c = cand[lo:lo + 256]
-        h = n[c] @ v.T - off[c, None]
-        side[c] &= np.where(h.max(axis=1) <= tol, 1, 0) | np.where(h.min(axis=1) >= -tol, 2, 0)
+        side[c] &= verdict(c, v)
     return side.astype(np.uint8) if side.any() else None
 
 
