@@ -847,11 +847,13 @@ def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: floa
 # leaves a point of that face towards its front can meet no triangle of the mesh at t > 0: its
 # origin is spawned in front of the plane (by far more than ESCAPE_TOL) and it only moves away.
 # ``escape_sides`` marks each face 1 (every vertex behind: rays towards the front escape), 2
-# (every vertex in front: rays towards the back escape) or 0; ``lights`` skips the mesh for such
-# a shading point's shadow rays (``ShadePacket.skip``). A convex mesh escapes everywhere; the
-# outer half of a torus too. Vertices far from the plane reject most faces of a large mesh
-# against a few hundred extreme vertices first; a face is accepted only against every vertex,
-# within ESCAPE_BUDGET vertex tests (past it, no face escapes).
+# (every vertex in front: rays towards the back escape) or 0; a camera packet's shading point on
+# such a face sends its shadow rays past that instance (``lights.area_lights_packet``'s and
+# ``point_lights_packet``'s ``skip``, ``trace.occluded_packet``). A convex mesh escapes
+# everywhere, the outer half of a torus too. First verdicts reject most faces of a bumpy mesh
+# cheaply (the third corners of the faces across its edges, then the extreme vertices in 64
+# directions); a face is accepted only against every vertex, within ESCAPE_BUDGET vertex tests
+# (past it, no face escapes).
 ESCAPE_TOL = 5.0e-7
 ESCAPE_BUDGET = 50_000_000
 

@@ -356,6 +356,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             shaded = False
             lit = int(0)  # the lanes with a shading point
             sp_ = ShadePacket()
+            skip_ = PacketI()  # lanes on an escaping mesh face: that instance + 1 (accel.escape_sides)
             lp = LightPacket()
             lr = PacketF()  # each lane's sample (rgb), or its light without the area lights
             lg = PacketF()
@@ -403,7 +404,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                     if h.kind == KIND_MESH:
                                         side = escape_side(scene.insts[h.index].escape, h.face)
                                         if (front and side & 1 != 0) or (not front and side & 2 != 0):
-                                            sp_.skip[k] = h.index + 1
+                                            skip_[k] = h.index + 1
                                 sp_.px[k] = h.p[0]
                                 sp_.py[k] = h.p[1]
                                 sp_.pz[k] = h.p[2]
@@ -436,7 +437,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     if lit != 0:
                         # the point lights for all lanes at once (local + their sum, as alone)
                         if scene.n_plights > 0:
-                            pl = point_lights_packet(scene, sp_, lanes, lit)
+                            pl = point_lights_packet(scene, sp_, lanes, lit, skip_)
                             for k in range(PACKET):
                                 if (lit >> k) & 1 != 0:
                                     lr[k] = lr[k] + lane(pl.r, k)
@@ -445,7 +446,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                     l_rays[k] += lane_i(pl.rays, k)
                         if wp.static(F.area_lights):
                             if scene.n_alights > 0:
-                                lp = area_lights_packet(scene, params, sp_, lanes, lit)
+                                lp = area_lights_packet(scene, params, sp_, lanes, lit, skip_)
             # a shaded packet's samples as the film adds them, the 8 lanes at once (film.packet_samples)
             film_r = PacketF()
             film_g = PacketF()

@@ -58,7 +58,6 @@ class ShadePacket:
     time: PacketF
     key: PacketU
     sample: PacketI
-    skip: PacketI  # i + 1 where the lane's point is on an escaping face of mesh instance i (trace.occluded_packet)
     glossy: int  # 1 when a lane's material has a specular colour (ks > 0); 0: every lobe is kd · n·l
 
 
@@ -331,12 +330,14 @@ def make_lights(F: Features) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def area_lights_packet(scene: SceneData, params: RenderParams, sp: ShadePacket, lanes: int,
-                           live: int) -> LightPacket:
+                           live: int, skip: PacketI) -> LightPacket:
         """``area_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes``
         - 1 whose bit is set in ``live``; their path key is the camera ray's, ROOT_KEY), each
         lane's sum the same as alone, bit for bit: a rectangle's draws for all lanes at once
         (``shapes.rect_draw_packet``), then each lane's shadow ray; other emitters, and lanes a
-        rectangle is drawn for by solid angle, one lane at a time."""
+        rectangle is drawn for by solid angle, one lane at a time. ``skip[k]`` = i + 1 where lane
+        k's point is on an escaping face of mesh instance i (its shadow rays pass that instance:
+        ``trace.occluded_packet``), else 0."""
         out = LightPacket()
         glossy = sp.glossy
         ux = PacketF()
@@ -416,7 +417,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                     # the shadow rays of the lanes together (``shadow``'s set-up, then
                     # ``occluded_packet``; without secondary rays nothing is transparent)
                     test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
-                    shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, sp.skip)
+                    shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip)
                     lit = go & ~shut
                     for k in range(lanes):
                         if (lit >> k) & 1 == 0:
@@ -449,12 +450,12 @@ def make_lights(F: Features) -> SimpleNamespace:
         return out
 
     @wp.func
-    def point_lights_packet(scene: SceneData, sp: ShadePacket, lanes: int, live: int) -> LightPacket:
+    def point_lights_packet(scene: SceneData, sp: ShadePacket, lanes: int, live: int, skip: PacketI) -> LightPacket:
         """``point_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes`` - 1
         whose bit is set in ``live``), each lane's sum the same as alone, bit for bit: per light,
         the geometry for all lanes at once (``point_light_packet``), each lane's colour, then the
         lanes' shadow rays together (``occluded_packet``; a kernel without secondary rays has no
-        transparent materials)."""
+        transparent materials); ``skip`` as for ``area_lights_packet``."""
         out = LightPacket()
         glossy = sp.glossy
         dist = PacketF()
@@ -492,8 +493,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                 go = go | (1 << k)
             if go == 0:
                 continue
-            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time,
-                                      sp.skip)
+            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip)
             lit = go & ~blocked
             # each lit lane's mul_sat(1, mul_sat(I, f)), the 8 at once
             inv_sq = int(0)
