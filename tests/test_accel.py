@@ -974,6 +974,15 @@ def _n_balls(renderer):
     return int(renderer.built.data.insts.numpy()["n_balls"][0])
 
 
+def _with_and_without(renderer, field, spp):
+    """The renderer's image, then the same with every instance record's ``field`` zeroed."""
+    first = renderer.render(spp=spp, seed=3, progress=False).image
+    rows = renderer.built.data.insts.numpy()
+    rows[field] = 0
+    renderer.built.data.insts.assign(rows)
+    return first, renderer.render(spp=spp, seed=3, progress=False).image
+
+
 def test_shadow_rays_use_interior_balls_only_where_no_shading_point_is_inside_the_solid():
     """The renderer gives a mesh instance its balls while the camera (eye and lens, at both ends of
     its motion) and every light stay outside the instance's box, and its images are then the same
@@ -982,21 +991,15 @@ def test_shadow_rays_use_interior_balls_only_where_no_shading_point_is_inside_th
     scene = _balls_scene()
     r = warprt.Renderer(scene, device="cpu")
     assert _n_balls(r) > 0
-    with_balls = r.render(spp=4, seed=3, progress=False).image
-    rows = r.built.data.insts.numpy()
-    rows["n_balls"] = 0
-    r.built.data.insts.assign(rows)
-    assert r.render(spp=4, seed=3, progress=False).image.tobytes() == with_balls.tobytes()
+    with_balls, without = _with_and_without(r, "n_balls", 4)
+    assert without.tobytes() == with_balls.tobytes()
     r.built.refresh_balls()
     assert _n_balls(r) > 0
     # the same through the all-features kernel, whose shadow rays take ``transmittance``
     full = warprt.Renderer(scene, device="cpu", features=warprt.Features.full())
     assert _n_balls(full) > 0
-    with_balls = full.render(spp=2, seed=3, progress=False).image
-    rows = full.built.data.insts.numpy()
-    rows["n_balls"] = 0
-    full.built.data.insts.assign(rows)
-    assert full.render(spp=2, seed=3, progress=False).image.tobytes() == with_balls.tobytes()
+    with_balls, without = _with_and_without(full, "n_balls", 2)
+    assert without.tobytes() == with_balls.tobytes()
 
     r.set_camera(dataclasses.replace(scene.camera, eye=(0.0, 0.2, 0.3)))  # inside the mesh's box
     assert _n_balls(r) == 0
@@ -1154,13 +1157,9 @@ def test_shadow_rays_skip_the_mesh_whose_escaping_face_they_leave_and_the_image_
     r = warprt.Renderer(scene, device="cpu")
     rows = r.built.data.insts.numpy()
     assert np.count_nonzero(rows["escape"]) == 4
-    with_faces = r.render(spp=4, seed=5, progress=False).image
-    rows["escape"] = 0
-    r.built.data.insts.assign(rows)
-    without = r.render(spp=4, seed=5, progress=False).image
+    with_faces, without = _with_and_without(r, "escape", 4)
     assert without.tobytes() == with_faces.tobytes()
     assert float(without[..., 0].std()) > 0.01  # (a lit, shadowed image)
-    r.built.refresh_balls()
     r2 = warprt.Renderer(scene, device="cpu")
     r2.set_mesh_points(2, tv * 1.01)
     assert r2.built.data.insts.numpy()["escape"][1] == 0
