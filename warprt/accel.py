@@ -722,13 +722,15 @@ def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root:
 # while the camera and every light stay outside its box, and drops them for meshes whose points
 # move). A mesh qualifies when every edge is shared by exactly two triangles (closed), so that
 # the inside is well defined, and from BALLS_MIN_TRIANGLES triangles on (smaller trees are quick).
-# Centres: the points of a BALLS_GRID³ lattice over the mesh's box that three ray-parity counts
-# in different directions all put inside, each with its distance to the nearest triangle; the
-# farthest from the surface first, then greedily any centre not within 0.8 of a chosen ball's
-# radius, up to BALLS_MAX; each centre moved once to the best of its 5³ neighbours at half the
-# lattice step; radii shrunk by BALLS_SHRINK (the float32 ball test and the distances' rounding).
+# Centres: the points of a BALLS_GRID³ lattice over the mesh's box that a ray-parity count puts
+# inside, each with its distance to the nearest triangle; the farthest from the surface first,
+# then greedily any centre not within 0.8 of a chosen ball's radius, up to BALLS_MAX; a chosen
+# centre is kept only where two more parity counts in other directions agree; each then moved
+# once to the best of its 5³ neighbours at half the lattice step (within 0.9 of its radius, so
+# still inside); radii shrunk by BALLS_SHRINK (the float32 ball test and the distances' rounding).
 BALLS_MIN_TRIANGLES = 512
 BALLS_GRID = 24
+BALLS_BIG = 500_000  # from this many triangles a 16³ lattice (a probe deep inside visits much of the tree)
 BALLS_MAX = 32
 BALLS_SHRINK = 1.0e-3
 _PARITY_DIRS = ((0.5773503, 0.5773503, 0.5773503), (-0.2672612, 0.5345225, 0.8017837),
@@ -736,15 +738,17 @@ _PARITY_DIRS = ((0.5773503, 0.5773503, 0.5773503), (-0.2672612, 0.5345225, 0.801
 
 
 @wp.kernel(module="warprt_accel", enable_backward=False)
-def interior_probe_kernel(mid: wp.uint64, pts: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
-    """out[i]: the distance from pts[i] to the mesh's nearest triangle where three ray-parity
-    counts (``_PARITY_DIRS``) all say inside; 0 elsewhere."""
+def interior_probe_kernel(mid: wp.uint64, pts: wp.array(dtype=wp.vec3), rays: int, out: wp.array(dtype=float)):
+    """out[i]: the distance from pts[i] to the mesh's nearest triangle where the first ``rays``
+    (0, 1 or 3) ray-parity counts (``_PARITY_DIRS``) all say inside; 0 elsewhere."""
     i = wp.tid()
     p = pts[i]
     odd = int(1)
-    odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.5773503, 0.5773503, 0.5773503))
-    odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(-0.2672612, 0.5345225, 0.8017837))
-    odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.7071068, -0.5, -0.5))
+    if rays > 0:
+        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.5773503, 0.5773503, 0.5773503))
+    if rays > 1:
+        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(-0.2672612, 0.5345225, 0.8017837))
+        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.7071068, -0.5, -0.5))
     out[i] = 0.0
     if odd != 0:
         q = wp.mesh_query_point_no_sign(mid, p, 1.0e30)
@@ -757,15 +761,15 @@ def closed_surface(faces: np.ndarray) -> bool:
     f = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e.sort(axis=1)
-    key = e[:, 0] * (int(f.max()) + 1) + e[:, 1]
-    _, counts = np.unique(key, return_counts=True)
-    return bool(len(f) > 0 and np.all(counts == 2))
+    key = np.sort(e[:, 0] * (int(f.max()) + 1) + e[:, 1])
+    # each key exactly twice: equal in pairs, and each pair unlike the next
+    return bool(len(f) > 0 and np.array_equal(key[0::2], key[1::2]) and np.all(key[1:-1:2] != key[2::2]))
 
 
-def _probe(mesh: "wp.Mesh", pts: np.ndarray) -> np.ndarray:
+def _probe(mesh: "wp.Mesh", pts: np.ndarray, rays: int) -> np.ndarray:
     out = wp.zeros(len(pts), dtype=float, device=mesh.device)
     wp.launch(interior_probe_kernel, dim=len(pts), device=mesh.device,
-              inputs=[mesh.id, wp.array(pts.astype(np.float32), dtype=wp.vec3, device=mesh.device), out])
+              inputs=[mesh.id, wp.array(pts.astype(np.float32), dtype=wp.vec3, device=mesh.device), rays, out])
     return out.numpy().astype(np.float64)
 
 
@@ -776,9 +780,10 @@ def interior_balls(mesh: "wp.Mesh", points: np.ndarray, faces: np.ndarray) -> np
     if len(faces) < BALLS_MIN_TRIANGLES or not closed_surface(faces):
         return None
     lo, hi = points.min(axis=0).astype(np.float64), points.max(axis=0).astype(np.float64)
-    axes = [np.linspace(lo[a], hi[a], BALLS_GRID + 2)[1:-1] for a in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    r = _probe(mesh, grid)
+    grid_n = BALLS_GRID if len(faces) < BALLS_BIG else 16
+    axes = [np.linspace(lo[a], hi[a], grid_n + 2)[1:-1] for a in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3).astype(np.float32).astype(np.float64)
+    r = _probe(mesh, grid, 1)  # one parity count for the lattice; the chosen centres get three
     inside = r > 0.0
     if not inside.any():
         return None
@@ -794,11 +799,16 @@ def interior_balls(mesh: "wp.Mesh", points: np.ndarray, faces: np.ndarray) -> np
             chosen.append(i)
             covered |= np.linalg.norm(c - c[i], axis=1) < 0.8 * r[i]
     c, r = c[chosen], r[chosen]
-    # each centre to the best of its 5 x 5 x 5 neighbours at half the lattice step
-    step = (hi - lo) / (BALLS_GRID + 1) * 0.5
-    off = np.stack(np.meshgrid(*[np.arange(-2, 3)] * 3, indexing="ij"), -1).reshape(-1, 3) * step
-    cand = (c[:, None, :] + off[None]).reshape(-1, 3)
-    rc = _probe(mesh, cand).reshape(len(c), -1)
+    keep = _probe(mesh, c, 3) > 0.0  # inside by all three counts
+    if not keep.any():
+        return None
+    c, r = c[keep], r[keep]
+    # each centre to the best of its 5 x 5 x 5 neighbours at half the lattice step, all within 0.9
+    # of its ball's radius (so inside the solid: their distances need no parity)
+    step = np.minimum((hi - lo).max() / (grid_n + 1) * 0.5, 0.9 * r / (2.0 * np.sqrt(3.0)))
+    off = np.stack(np.meshgrid(*[np.arange(-2, 3)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    cand = (c[:, None, :] + off[None] * step[:, None, None]).reshape(-1, 3).astype(np.float32).astype(np.float64)
+    rc = _probe(mesh, cand, 0).reshape(len(c), -1)
     best = rc.argmax(axis=1)
     c = cand.reshape(len(c), -1, 3)[np.arange(len(c)), best]
     r = rc[np.arange(len(c)), best] * (1.0 - BALLS_SHRINK)
@@ -856,13 +866,14 @@ def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: floa
 # (past it, no face escapes).
 ESCAPE_TOL = 5.0e-7
 ESCAPE_BUDGET = 50_000_000
+ESCAPE_MAX_TRIANGLES = 500_000  # (larger meshes: none, for the build's time: about 1 s a million)
 
 
 def escape_sides(points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
     """Each face's escaping side (see above) as uint8, or None when none escapes."""
     v = np.asarray(points, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0:
+    if len(f) == 0 or len(f) > ESCAPE_MAX_TRIANGLES:
         return None
     tol = ESCAPE_TOL * float(np.abs(v).max())
     a = v[f[:, 0]]
