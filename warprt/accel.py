@@ -19,6 +19,9 @@ with the same number of nodes (n − 1 for n primitives), so world w's root is w
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import warp as wp
 
@@ -767,9 +770,24 @@ def closed_surface(faces: np.ndarray) -> bool:
 
 
 def _probe(mesh: "wp.Mesh", pts: np.ndarray, rays: int) -> np.ndarray:
-    out = wp.zeros(len(pts), dtype=float, device=mesh.device)
-    wp.launch(interior_probe_kernel, dim=len(pts), device=mesh.device,
-              inputs=[mesh.id, wp.array(pts.astype(np.float32), dtype=wp.vec3, device=mesh.device), rays, out])
+    """``interior_probe_kernel`` over pts, in as many pieces as the CPU has cores (a CPU launch
+    runs on one thread; a probe deep inside a large mesh visits much of its tree)."""
+    dev = mesh.device
+    out = wp.zeros(len(pts), dtype=float, device=dev)
+    a = wp.array(pts.astype(np.float32), dtype=wp.vec3, device=dev)
+    pieces = min(os.cpu_count() or 1, max(1, len(pts) // 1024)) if dev.is_cpu else 1
+    bounds = np.linspace(0, len(pts), pieces + 1).astype(int)
+
+    def run(k: int) -> None:
+        lo, hi = int(bounds[k]), int(bounds[k + 1])
+        if hi > lo:
+            wp.launch(interior_probe_kernel, dim=hi - lo, device=dev, inputs=[mesh.id, a[lo:hi], rays, out[lo:hi]])
+
+    if pieces == 1:
+        run(0)
+    else:
+        with ThreadPoolExecutor(max_workers=pieces) as pool:
+            list(pool.map(run, range(pieces)))
     return out.numpy().astype(np.float64)
 
 
