@@ -463,10 +463,11 @@ class MeshTree:
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
         """Find the mesh's interior balls and escaping faces (None where it has none)."""
-        blocks = interior_balls(self.mesh, points, faces)
+        edges = edge_keys(faces)
+        blocks = interior_balls(self.mesh, points, faces, edges)
         self.balls = None if blocks is None else wp.array(blocks.reshape(-1), dtype=wp.float32,
                                                           device=self.mesh.device)
-        sides = escape_sides(points, faces)
+        sides = escape_sides(points, faces, edges)
         self.escape = None if sides is None else wp.array(sides, dtype=wp.uint8, device=self.mesh.device)
 
     def refresh(self) -> None:
@@ -736,22 +737,24 @@ BALLS_GRID = 24
 BALLS_BIG = 500_000  # from this many triangles a 16³ lattice (a probe deep inside visits much of the tree)
 BALLS_MAX = 32
 BALLS_SHRINK = 1.0e-3
-_PARITY_DIRS = ((0.5773503, 0.5773503, 0.5773503), (-0.2672612, 0.5345225, 0.8017837),
-                (0.7071068, -0.5, -0.5))
+# the ray-parity counts' directions (unit, none along an axis or a diagonal of the lattice)
+_PARITY_0 = wp.constant(wp.vec3(0.5773503, 0.5773503, 0.5773503))
+_PARITY_1 = wp.constant(wp.vec3(-0.2672612, 0.5345225, 0.8017837))
+_PARITY_2 = wp.constant(wp.vec3(0.7071068, -0.5, -0.5))
 
 
 @wp.kernel(module="warprt_accel", enable_backward=False)
 def interior_probe_kernel(mid: wp.uint64, pts: wp.array(dtype=wp.vec3), rays: int, out: wp.array(dtype=float)):
     """out[i]: the distance from pts[i] to the mesh's nearest triangle where the first ``rays``
-    (0, 1 or 3) ray-parity counts (``_PARITY_DIRS``) all say inside; 0 elsewhere."""
+    (0, 1 or 3) ray-parity counts (``_PARITY_0`` ...) all say inside; 0 elsewhere."""
     i = wp.tid()
     p = pts[i]
     odd = int(1)
     if rays > 0:
-        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.5773503, 0.5773503, 0.5773503))
+        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, _PARITY_0)
     if rays > 1:
-        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(-0.2672612, 0.5345225, 0.8017837))
-        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, wp.vec3(0.7071068, -0.5, -0.5))
+        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, _PARITY_1)
+        odd = odd & wp.mesh_query_ray_count_intersections(mid, p, _PARITY_2)
     out[i] = 0.0
     if odd != 0:
         q = wp.mesh_query_point_no_sign(mid, p, 1.0e30)
@@ -759,14 +762,23 @@ def interior_probe_kernel(mid: wp.uint64, pts: wp.array(dtype=wp.vec3), rays: in
             out[i] = wp.length(wp.mesh_eval_position(mid, q.face, q.u, q.v) - p)
 
 
-def closed_surface(faces: np.ndarray) -> bool:
-    """Whether every edge of the triangles ``faces`` (F, 3) is shared by exactly two of them."""
+def edge_keys(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 3F edges of the triangles ``faces`` (F, 3) as keys of their two corners whatever their
+    order (edge k of face i at row k·F + i: corners (0, 1), (1, 2), (2, 0)), and the order that
+    sorts the keys (stable), for ``closed_surface`` and ``escape_sides`` to share."""
     f = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e.sort(axis=1)
-    key = np.sort(e[:, 0] * (int(f.max()) + 1) + e[:, 1])
+    key = e.min(axis=1) * (int(f.max(initial=0)) + 1) + e.max(axis=1)
+    return key, np.argsort(key, kind="stable")
+
+
+def closed_surface(faces: np.ndarray, edges: tuple | None = None) -> bool:
+    """Whether every edge of the triangles ``faces`` (F, 3) is shared by exactly two of them
+    (``edges``: their ``edge_keys`` when already at hand)."""
+    key, order = edge_keys(faces) if edges is None else edges
+    key = key[order]
     # each key exactly twice: equal in pairs, and each pair unlike the next
-    return bool(len(f) > 0 and np.array_equal(key[0::2], key[1::2]) and np.all(key[1:-1:2] != key[2::2]))
+    return bool(len(faces) > 0 and np.array_equal(key[0::2], key[1::2]) and np.all(key[1:-1:2] != key[2::2]))
 
 
 def _probe(mesh: "wp.Mesh", pts: np.ndarray, rays: int) -> np.ndarray:
@@ -791,11 +803,12 @@ def _probe(mesh: "wp.Mesh", pts: np.ndarray, rays: int) -> np.ndarray:
     return out.numpy().astype(np.float64)
 
 
-def interior_balls(mesh: "wp.Mesh", points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
+def interior_balls(mesh: "wp.Mesh", points: np.ndarray, faces: np.ndarray,
+                   edges: tuple | None = None) -> np.ndarray | None:
     """The interior balls of a closed mesh (see above) as blocks of 8: float32 (B, 4, 8) holding
     the centres' x, y, z and the squared radii (padding: radius² -1, never met); None when the
-    mesh does not qualify or no centre is inside."""
-    if len(faces) < BALLS_MIN_TRIANGLES or not closed_surface(faces):
+    mesh does not qualify or no centre is inside (``edges``: the faces' ``edge_keys``)."""
+    if len(faces) < BALLS_MIN_TRIANGLES or not closed_surface(faces, edges):
         return None
     lo, hi = points.min(axis=0).astype(np.float64), points.max(axis=0).astype(np.float64)
     grid_n = BALLS_GRID if len(faces) < BALLS_BIG else 16
@@ -887,8 +900,9 @@ ESCAPE_BUDGET = 50_000_000
 ESCAPE_MAX_TRIANGLES = 500_000  # (larger meshes: none, for the build's time: about 1 s a million)
 
 
-def escape_sides(points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
-    """Each face's escaping side (see above) as uint8, or None when none escapes."""
+def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = None) -> np.ndarray | None:
+    """Each face's escaping side (see above) as uint8, or None when none escapes (``edges``: the
+    faces' ``edge_keys``)."""
     v = np.asarray(points, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0 or len(f) > ESCAPE_MAX_TRIANGLES:
@@ -908,11 +922,9 @@ def escape_sides(points: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
     side = np.where(length > 0.0, 3, 0)
     # first verdicts: each face's neighbours across its edges (their third corners: a concave
     # edge rejects both faces), then the extreme vertices in 64 directions
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     third = np.concatenate([f[:, 2], f[:, 0], f[:, 1]])
     owner = np.tile(np.arange(len(f)), 3)
-    key = np.minimum(e[:, 0], e[:, 1]) * len(v) + np.maximum(e[:, 0], e[:, 1])
-    order = np.argsort(key, kind="stable")
+    key, order = edge_keys(f) if edges is None else edges
     pair = np.flatnonzero(key[order[1:]] == key[order[:-1]])
     p, q = order[pair], order[pair + 1]
     for a_, b_ in ((p, q), (q, p)):

@@ -1040,6 +1040,23 @@ def make_trace(F: Features) -> SimpleNamespace:
                 T = wp.cw_mul(T, crossing(scene, scene.spheres[i].mat))
         return T
 
+    @wp.func(inline=True)
+    def opaque_occluded(scene: SceneData, i: int, o_obj: wp.vec3, d_obj: wp.vec3, t_max: float) -> bool:
+        """Whether a triangle of opaque instance i blocks the shadow ray (o_obj, d_obj) over
+        (0, t_max), in its object space: first the interior balls (accel.py: a segment through
+        one enters the solid), then any triangle the ray meets and does not leave (the CPU's tree
+        copy stops at the first), else the nearest-hit loop, which steps over the face the ray
+        leaves."""
+        if scene.insts[i].n_balls > 0:
+            if mesh_balls_hit(scene.insts[i].balls, scene.insts[i].n_balls, o_obj, d_obj, t_max) != 0:
+                return True
+        occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids, scene.insts[i].tree_tris,
+                                 scene.insts[i].tree_root, o_obj, d_obj, t_max)
+        if occ < 0:
+            if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
+                occ = 1
+        return occ > 0
+
     @wp.func
     def mesh_transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
         T = wp.vec3(1.0, 1.0, 1.0)
@@ -1052,18 +1069,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             d_obj = dir_to_object(pose, d)
             kt = crossing(scene, scene.insts[i].mat)
             if wp.max(kt) <= 0.0:
-                # opaque: any triangle the ray meets and does not leave blocks it (the CPU's tree
-                # copy stops at the first); else the nearest-hit loop, which steps over the face
-                # the ray leaves; first the interior balls (accel.py: a segment through one enters the solid)
-                if scene.insts[i].n_balls > 0:
-                    if mesh_balls_hit(scene.insts[i].balls, scene.insts[i].n_balls, o_obj, d_obj, t_max) != 0:
-                        return wp.vec3(0.0, 0.0, 0.0)
-                occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids,
-                                         scene.insts[i].tree_tris, scene.insts[i].tree_root, o_obj, d_obj, t_max)
-                if occ < 0:
-                    if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
-                        occ = 1
-                if occ > 0:
+                if opaque_occluded(scene, i, o_obj, d_obj, t_max):
                     return wp.vec3(0.0, 0.0, 0.0)
             else:
                 # transparent mesh: walk its crossings one by one. Each crossing is rebuilt on its
@@ -1175,17 +1181,7 @@ def make_trace(F: Features) -> SimpleNamespace:
         """Whether a triangle of opaque instance i blocks the shadow ray (o, d) over (0, t_max) whose
         box test passed (``mesh_transmittance``'s opaque branch)."""
         pose = instance_pose(scene, i, time)
-        o_obj = to_object(pose, o)
-        d_obj = dir_to_object(pose, d)
-        if scene.insts[i].n_balls > 0:  # through an interior ball: it enters the solid (accel.py)
-            if mesh_balls_hit(scene.insts[i].balls, scene.insts[i].n_balls, o_obj, d_obj, t_max) != 0:
-                return True
-        occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids, scene.insts[i].tree_tris,
-                                 scene.insts[i].tree_root, o_obj, d_obj, t_max)
-        if occ < 0:
-            if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
-                occ = 1
-        return occ > 0
+        return opaque_occluded(scene, i, to_object(pose, o), dir_to_object(pose, d), t_max)
 
     @wp.func
     def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
