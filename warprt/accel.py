@@ -458,17 +458,17 @@ class MeshTree:
         self._info = wp.zeros(2, dtype=wp.int32, device=dev)  # the root, the largest leaf
         self.slots = slots
         self.balls: wp.array | None = None  # interior balls (``interior_balls``), set by ``find_balls``
-        self.escape: wp.array | None = None  # escaping faces (``escape_sides``), set by ``find_balls``
+        self.escape: wp.array | None = None  # escape horizons (``escape_horizons``), set by ``find_balls``
         self.refresh()
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
-        """Find the mesh's interior balls and escaping faces (None where it has none)."""
+        """Find the mesh's interior balls and escape horizons (None where it has none)."""
         edges = edge_keys(faces)
         blocks = interior_balls(self.mesh, points, faces, edges)
         self.balls = None if blocks is None else wp.array(blocks.reshape(-1), dtype=wp.float32,
                                                           device=self.mesh.device)
-        sides = escape_sides(points, faces, edges)
-        self.escape = None if sides is None else wp.array(sides, dtype=wp.uint8, device=self.mesh.device)
+        h = escape_horizons(self, points, faces, edges)
+        self.escape = None if h is None else wp.array(h.reshape(-1), dtype=wp.uint32, device=self.mesh.device)
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
@@ -765,7 +765,7 @@ def interior_probe_kernel(mid: wp.uint64, pts: wp.array(dtype=wp.vec3), rays: in
 def edge_keys(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The 3F edges of the triangles ``faces`` (F, 3) as keys of their two corners whatever their
     order (edge k of face i at row k·F + i: corners (0, 1), (1, 2), (2, 0)), and the order that
-    sorts the keys (stable), for ``closed_surface`` and ``escape_sides`` to share."""
+    sorts the keys (stable), for ``closed_surface`` and ``interior_balls`` to share."""
     f = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     key = e.min(axis=1) * (int(f.max(initial=0)) + 1) + e.max(axis=1)
@@ -888,10 +888,9 @@ def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: floa
 # leaves a point of that face towards its front can meet no triangle of the mesh at t > 0: its
 # origin is spawned in front of the plane (by far more than ESCAPE_TOL) and it only moves away.
 # ``escape_sides`` marks each face 1 (every vertex behind: rays towards the front escape), 2
-# (every vertex in front: rays towards the back escape) or 0; a camera packet's shading point on
-# such a face sends its shadow rays past that instance (``lights.area_lights_packet``'s and
-# ``point_lights_packet``'s ``skip``, ``trace.occluded_packet``). A convex mesh escapes
-# everywhere, the outer half of a torus too. First verdicts reject most faces of a bumpy mesh
+# (every vertex in front: rays towards the back escape) or 0: escape horizons of zero on that
+# side (below), found without a traversal. A convex mesh escapes everywhere, the outer half of a
+# torus too. First verdicts reject most faces of a bumpy mesh
 # cheaply (the third corners of the faces across its edges, then the extreme vertices in 64
 # directions); a face is accepted only against every vertex, within ESCAPE_BUDGET vertex tests
 # (past it, no face escapes).
@@ -945,14 +944,428 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
     return side.astype(np.uint8) if side.any() else None
 
 
-_ESCAPE_SIDE = r"""
-return escape == 0 ? 0 : (int)((const unsigned char*)escape)[face];
+# Escape horizons (shadow rays from a mesh's own surface). A shadow ray leaving a point of face f
+# towards its side A (the face's unit normal, or its opposite: the side the shading point is seen
+# from) can meet a triangle of the mesh only in a direction some point of f sees a point of that
+# triangle in. Around A, directions fall into 8 sectors of azimuth (45 degrees each, from a frame
+# t, b = A x t with t across A and the axis of A's least component); per face and side, each
+# sector keeps an upper bound on the sine of the elevation (above f's plane) of every direction
+# in it from a point of f to a point of another triangle. A ray whose elevation passes its
+# sector's bound meets none: it skips the instance (``lights.area_lights_packet``'s and
+# ``point_lights_packet``'s ``skip`` and ``face``, ``trace.occluded_packet``). Escaping faces
+# (above) are horizons of zero. The bounds cost about 17 us a face (2 cores), so meshes of more
+# than HORIZON_MAX_TRIANGLES keep the escaping faces alone: on peer scene (d)'s 328k-triangle
+# torus the bounds pass 69% of the light-facing rays and save 8-18% of a render, for 17 s of
+# build (docs/benchmarks.md, levers).
+#
+# The bounds (``horizon_kernel``, C++ in double over the CPU tree copy, once per asset): for a
+# part of the mesh (a node's box, or a triangle), the top of its box along A over its distance
+# from the ball around f, and, once the balls are apart, the cap of directions from f's ball to
+# the part's ball: its top elevation and the sectors its azimuths cross (widened by
+# HORIZON_MARGIN). A box wholly behind f's plane adds nothing; a node whose bound raises no
+# sector is pruned; a node seen under less than HORIZON_DETAIL radians is taken whole; a
+# triangle's own bound is the least of its cap, of its plane (f on or above the triangle's plane:
+# every direction into the triangle lies below that plane; per sector, in closed form) and, where
+# the plane does not apply, of the exact highest direction of the cone the nine corner
+# differences span (on a generator, or on the sector between two; 1 when the triangle, seen
+# along A, lies over f by more than the tolerance). The tolerance is ESCAPE_TOL of the mesh's
+# largest coordinate (the float32 rounding of a planar quad: a shading point is spawned off its
+# face by far more). The bounds are stored rounded up to 1/255 with HORIZON_MARGIN added (the
+# float32 test's rounding); a side whose every sector reaches HORIZON_GIVE_UP is closed. Closed
+# meshes get their outer side only (the inner one serves a camera inside the solid, where every
+# direction meets the mesh soon). Each face: its unit normal (float32, the axis both the bounds
+# and the test use), a word of flags (bit s: side s has an open sector), and 8 bytes per side.
+HORIZON_MARGIN = 2.0e-3
+HORIZON_DETAIL = 0.1
+HORIZON_GIVE_UP = 0.9
+HORIZON_BUDGET = 4096  # node visits a face and side (past them: closed)
+HORIZON_MAX_TRIANGLES = 8192
+
+_HORIZON_FACE = r"""
+#if !defined(__CUDA_ARCH__)
+auto fmax = [](double a, double b) { return a > b ? a : b; };
+auto fmin = [](double a, double b) { return a < b ? a : b; };
+auto fabs = [](double a) { return a < 0.0 ? -a : a; };
+auto sqrt = [](double a) { return __builtin_sqrt(a); };
+auto sub = [](const double* a, const double* b, double* r) { r[0] = a[0] - b[0]; r[1] = a[1] - b[1]; r[2] = a[2] - b[2]; };
+auto dot = [](const double* a, const double* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; };
+auto cross = [](const double* a, const double* b, double* r) {
+    r[0] = a[1] * b[2] - a[2] * b[1]; r[1] = a[2] * b[0] - a[0] * b[2]; r[2] = a[0] * b[1] - a[1] * b[0]; };
+const float* N = (const float*)nodes;
+const int* C = (const int*)kids;
+const float* TR = (const float*)tris;
+const int face = wp::mesh_get(mid).bvh.primitive_indices[k];
+unsigned int* out = (unsigned int*)outp + 8 * face;
+for (int w = 0; w < 8; ++w) out[w] = w < 4 ? 0u : 0xffffffffu;  // every sector closed
+const float* fk = TR + 9 * k;
+double F[3][3];
+for (int j = 0; j < 3; ++j) for (int i = 0; i < 3; ++i) F[j][i] = (double)fk[3 * j + i];
+double e1[3], e2[3], nn[3];
+sub(F[1], F[0], e1); sub(F[2], F[0], e2); cross(e1, e2, nn);
+const double len = sqrt(dot(nn, nn));
+if (!(len > 0.0)) return 0;
+const float a32[3] = {(float)(nn[0] / len), (float)(nn[1] / len), (float)(nn[2] / len)};
+__builtin_memcpy(out, a32, 12);
+const double PI = 3.14159265358979323846, SECTOR = PI / 4.0;
+double cf[3] = {(F[0][0] + F[1][0] + F[2][0]) / 3.0, (F[0][1] + F[1][1] + F[2][1]) / 3.0, (F[0][2] + F[1][2] + F[2][2]) / 3.0};
+double rf = 0.0;
+for (int j = 0; j < 3; ++j) { double w[3]; sub(F[j], cf, w); rf = fmax(rf, sqrt(dot(w, w))); }
+rf = rf * (1.0 + 1e-9) + tol;
+const double sdetail = __builtin_sin(detail);
+// per sector: its centre's direction, and its ends widened by the margin (cos, sin of each);
+// cw, sw: cos and sin of half a sector plus the margin
+double cen[8][2], ends[8][4];
+for (int s = 0; s < 8; ++s) {
+    const double c = (s + 0.5) * SECTOR, p0 = s * SECTOR - margin, p1 = (s + 1) * SECTOR + margin;
+    cen[s][0] = __builtin_cos(c); cen[s][1] = __builtin_sin(c);
+    ends[s][0] = __builtin_cos(p0); ends[s][1] = __builtin_sin(p0); ends[s][2] = __builtin_cos(p1); ends[s][3] = __builtin_sin(p1);
+}
+const double cw = __builtin_cos(0.5 * SECTOR + margin), sw = __builtin_sin(0.5 * SECTOR + margin);
+unsigned int usable = 0u;
+int visits = 0;
+const unsigned char known = ((const unsigned char*)escapes)[face];
+for (int side = 0; side < 2; ++side) {
+    if (!(sides >> side & 1)) continue;
+    visits = 0;
+    if (known >> side & 1) {  // every vertex behind this side (escape_sides): zero all round
+        for (int w = 0; w < 2; ++w) out[4 + 2 * side + w] = 0u;
+        usable |= 1u << side;
+        continue;
+    }
+    const double sg = side == 0 ? 1.0 : -1.0;
+    const double A[3] = {sg * (double)a32[0], sg * (double)a32[1], sg * (double)a32[2]};
+    // the sectors' frame (as ``horizon_escapes`` builds it): t across A and the axis of A's
+    // least component, b = A x t; sector s holds the azimuths [s, s + 1) * 45 degrees from t
+    const int ax = fabs(A[0]) <= fabs(A[1]) ? (fabs(A[0]) <= fabs(A[2]) ? 0 : 2) : (fabs(A[1]) <= fabs(A[2]) ? 1 : 2);
+    double ev[3] = {0.0, 0.0, 0.0}; ev[ax] = 1.0;
+    double t[3], b[3]; cross(A, ev, t);
+    const double tl = sqrt(dot(t, t)); t[0] /= tl; t[1] /= tl; t[2] /= tl;
+    cross(A, t, b);
+    double flo = 1e300;  // the face's lowest corner along A
+    for (int j = 0; j < 3; ++j) flo = fmin(flo, dot(F[j], A));
+    double h[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+    double hmin = 0.0;
+    auto least = [&](int m) { double v = 2.0; for (int s = 0; s < 8; ++s) if (m >> s & 1) v = fmin(v, h[s]); return v; };
+    // the sectors (bit s: sector s) whose azimuths come within ``half`` (its sine and cosine,
+    // plus the margin) of direction w's: the sector's centre within half + 22.5 degrees
+    auto sectors = [&](const double* w, double sh, double ch) -> int {
+        const double x = dot(w, t), y = dot(w, b), l = sqrt(x * x + y * y);
+        if (!(l > 0.0)) return 255;
+        const double lim = ch * cw - sh * sw;  // cos(half + 22.5 degrees + margin)
+        int m = 0;
+        for (int s = 0; s < 8; ++s) if (x * cen[s][0] + y * cen[s][1] >= lim * l) m |= 1 << s;
+        return m;
+    };
+    // an upper bound on the sine of the elevation of every direction from the face to a part of
+    // the mesh: its box's top along A (hb) over its distance from the face's ball, and, where the
+    // part's ball (c, r) is clear of the face's, the top of the cap of directions to that ball;
+    // m: the sectors those directions take (all, unless the cap says fewer); sb: the cap's sine
+    auto bound = [&](double hb, const double* lo, const double* hi, const double* c, double r, double floor, int& m,
+                     double& sb) -> double {
+        double dd = 0.0;
+        for (int i = 0; i < 3; ++i) { const double e = fmax(fmax(lo[i] - cf[i], cf[i] - hi[i]), 0.0); dd += e * e; }
+        dd = sqrt(dd);
+        double v = dd > rf ? fmin(1.0, (hb - flo) / (dd - rf)) : 1.0;
+        m = 255; sb = 1.0;
+        double w[3]; sub(c, cf, w);
+        const double dist = sqrt(dot(w, w)), R = rf + r;
+        if (dist > R * 1.0001) {
+            sb = R / dist;
+            const double cb = sqrt(1.0 - sb * sb), se = fmax(-1.0, fmin(1.0, dot(w, A) / dist)), ce = sqrt(1.0 - se * se);
+            if (ce * cb - se * sb > 0.0) {  // the cap's top below the pole
+                v = fmin(v, fmax(0.0, se * cb + ce * sb));
+                if (v <= floor) return v;
+                if (ce * cb + se * sb > 0.0) {  // nor holding the opposite pole: fewer sectors
+                    const double sh = fmin(1.0, sb / ce);
+                    m = sectors(w, sh, sqrt(1.0 - sh * sh));
+                }
+            }
+        }
+        return v;
+    };
+    auto raise = [&](int m, const double* v) {
+        for (int s = 0; s < 8; ++s) if ((m >> s & 1) && v[s] > h[s]) h[s] = v[s];
+        hmin = least(255);
+    };
+    // a triangle's share, per sector: the least of its box-and-cap bound, its plane's bound (the
+    // face on or above the triangle's plane: directions into it lie below that plane) and the
+    // highest direction of the cone the nine corner differences span
+    auto triangle = [&](const float* tp) {
+        double T[3][3], lo[3] = {1e300, 1e300, 1e300}, hi[3] = {-1e300, -1e300, -1e300};
+        for (int j = 0; j < 3; ++j) for (int i = 0; i < 3; ++i) {
+            T[j][i] = (double)tp[3 * j + i]; lo[i] = fmin(lo[i], T[j][i]); hi[i] = fmax(hi[i], T[j][i]); }
+        double hb = -1e300;
+        for (int j = 0; j < 3; ++j) hb = fmax(hb, dot(T[j], A));
+        if (hb <= flo + tol) return;  // behind (or on) the face's plane
+        double ct[3] = {(T[0][0] + T[1][0] + T[2][0]) / 3.0, (T[0][1] + T[1][1] + T[2][1]) / 3.0, (T[0][2] + T[1][2] + T[2][2]) / 3.0};
+        double rt = 0.0;
+        for (int j = 0; j < 3; ++j) { double w[3]; sub(T[j], ct, w); rt = fmax(rt, sqrt(dot(w, w))); }
+        int m; double sb;
+        const double v = bound(hb, lo, hi, ct, rt, hmin, m, sb);
+        if (v <= hmin || v <= least(m)) return;
+        double val[8];
+        for (int s = 0; s < 8; ++s) val[s] = v;
+        bool plane = false;
+        double u1[3], u2[3], mt[3];
+        sub(T[1], T[0], u1); sub(T[2], T[0], u2); cross(u1, u2, mt);
+        const double ml = sqrt(dot(mt, mt));
+        if (ml > 0.0) {
+            mt[0] /= ml; mt[1] /= ml; mt[2] /= ml;
+            double am = dot(A, mt);
+            if (am < 0.0) { am = -am; mt[0] = -mt[0]; mt[1] = -mt[1]; mt[2] = -mt[2]; }
+            double below = 1e300;
+            for (int j = 0; j < 3; ++j) { double w[3]; sub(F[j], T[0], w); below = fmin(below, dot(w, mt)); }
+            if (am > 0.0 && below >= -tol) {
+                // at azimuth phi the highest direction below the plane: tan e = -rho cos(phi - psi) / (A.m);
+                // over a sector the least cos(phi - psi): -1 where the sector (plus the margin)
+                // holds psi + 180 degrees, else at one of its ends
+                const double mx = dot(mt, t), my = dot(mt, b), rho = sqrt(mx * mx + my * my);
+                for (int s = 0; s < 8; ++s) {
+                    const double cmin = -(mx * cen[s][0] + my * cen[s][1]) >= cw * rho ? -1.0
+                        : fmin(mx * ends[s][0] + my * ends[s][1], mx * ends[s][2] + my * ends[s][3]) / fmax(rho, 1e-300);
+                    const double X = -rho * cmin;
+                    val[s] = fmin(val[s], X <= 0.0 ? 0.0 : X / sqrt(X * X + am * am));
+                }
+                plane = true;
+            }
+        }
+        if (!plane) {
+            // the cone of directions from the face to the triangle, spanned by the nine corner
+            // differences: its highest direction lies on a generator or on the sector between
+            // two (where A's projection onto their plane falls between them), unless the cone
+            // holds A itself: then some point of the triangle lies straight above the face
+            double W[9][3]; int nw = 0;
+            for (int i = 0; i < 3; ++i) for (int j = 0; j < 3; ++j) {
+                double w[3]; sub(T[i], F[j], w);
+                const double l = sqrt(dot(w, w));
+                if (l > 0.0) { W[nw][0] = w[0] / l; W[nw][1] = w[1] / l; W[nw][2] = w[2] / l; ++nw; }
+            }
+            double M = 0.0;
+            for (int a = 0; a < nw; ++a) M = fmax(M, dot(W[a], A));
+            for (int a = 0; a < nw; ++a) for (int c2 = a + 1; c2 < nw; ++c2) {
+                double cn[3]; cross(W[a], W[c2], cn);
+                const double cl2 = dot(cn, cn);
+                if (!(cl2 > 1e-24)) continue;
+                const double ac = dot(A, cn) / cl2;
+                const double P[3] = {A[0] - ac * cn[0], A[1] - ac * cn[1], A[2] - ac * cn[2]};
+                double x1[3], x2[3]; cross(P, W[c2], x1); cross(W[a], P, x2);
+                if (dot(x1, cn) >= 0.0 && dot(x2, cn) >= 0.0) M = fmax(M, sqrt(dot(P, P)));
+            }
+            // a point of the triangle above the face: the triangle clipped by the face, both
+            // seen along A (coordinates t, b; the third: the height along A)
+            double poly[9][3], tmp[9][3]; int np = 3;
+            double f2[3][2];
+            for (int j = 0; j < 3; ++j) { f2[j][0] = dot(F[j], t); f2[j][1] = dot(F[j], b); }
+            for (int j = 0; j < 3; ++j) { poly[j][0] = dot(T[j], t); poly[j][1] = dot(T[j], b); poly[j][2] = dot(T[j], A); }
+            const double orient = (f2[1][0] - f2[0][0]) * (f2[2][1] - f2[0][1]) - (f2[1][1] - f2[0][1]) * (f2[2][0] - f2[0][0]);
+            for (int e = 0; e < 3 && np > 0; ++e) {
+                const double* pa = f2[e]; const double* pb = f2[(e + 1) % 3];
+                int n2 = 0;
+                for (int i = 0; i < np; ++i) {
+                    const double* P0 = poly[i]; const double* P1 = poly[(i + 1) % np];
+                    const double s0 = ((pb[0] - pa[0]) * (P0[1] - pa[1]) - (pb[1] - pa[1]) * (P0[0] - pa[0])) * orient;
+                    const double s1 = ((pb[0] - pa[0]) * (P1[1] - pa[1]) - (pb[1] - pa[1]) * (P1[0] - pa[0])) * orient;
+                    if (s0 >= 0.0) { for (int c3 = 0; c3 < 3; ++c3) tmp[n2][c3] = P0[c3]; ++n2; }
+                    if ((s0 >= 0.0) != (s1 >= 0.0)) {
+                        const double u = s0 / (s0 - s1);
+                        for (int c3 = 0; c3 < 3; ++c3) tmp[n2][c3] = P0[c3] + u * (P1[c3] - P0[c3]);
+                        ++n2;
+                    }
+                }
+                np = n2;
+                for (int i = 0; i < np; ++i) for (int c3 = 0; c3 < 3; ++c3) poly[i][c3] = tmp[i][c3];
+            }
+            double fhi = -1e300;  // the face's highest corner: its plane is across A up to rounding
+            for (int j = 0; j < 3; ++j) fhi = fmax(fhi, dot(F[j], A));
+            for (int i = 0; i < np; ++i) if (poly[i][2] > fhi + tol) M = 1.0;
+            for (int s = 0; s < 8; ++s) val[s] = fmin(val[s], M);
+        }
+        raise(m, val);
+    };
+    // depth first, the child of the higher bound on top; a stacked node's bound is checked again
+    // when it is taken (the sectors may have risen past it meanwhile)
+    int stack[128], smask[128];
+    double sval[128];
+    int sp = 0;
+    int node = root;
+    while (true) {
+        const float* nd = N + 12 * node;
+        ++visits;
+        int pk[2], pm[2];
+        double pv[2];
+        int np2 = 0;
+        for (int c = 0; c < 2; ++c) {
+            const int kid = C[2 * node + c];
+            if (kid < 0 && -kid - 1 == k) continue;  // the face itself
+            if (kid < 0) { triangle(TR + 9 * (-kid - 1)); continue; }
+            double lo[3], hi[3], cb[3], r = 0.0, hb = 0.0;
+            for (int i = 0; i < 3; ++i) {
+                lo[i] = nd[6 * c + i]; hi[i] = nd[6 * c + 3 + i];
+                hb += fmax(lo[i] * A[i], hi[i] * A[i]);
+                cb[i] = 0.5 * (lo[i] + hi[i]);
+                r += 0.25 * (hi[i] - lo[i]) * (hi[i] - lo[i]);
+            }
+            if (hb <= flo + tol) continue;  // the box is behind the face's plane
+            int m; double sb;
+            const double v = bound(hb, lo, hi, cb, sqrt(r), hmin, m, sb);
+            if (v <= hmin || v <= least(m)) continue;  // raises no sector
+            if (sb < sdetail) { double val[8]; for (int s = 0; s < 8; ++s) val[s] = v; raise(m, val); continue; }
+            pk[np2] = kid; pm[np2] = m; pv[np2] = v; ++np2;
+        }
+        if (np2 == 2 && pv[0] > pv[1]) {
+            int tk = pk[0]; pk[0] = pk[1]; pk[1] = tk; tk = pm[0]; pm[0] = pm[1]; pm[1] = tk;
+            double tv = pv[0]; pv[0] = pv[1]; pv[1] = tv;
+        }
+        if (sp + np2 > 128 || visits > budget) { hmin = 1.0; break; }  // too deep or too long: closed
+        for (int i = 0; i < np2; ++i) { stack[sp] = pk[i]; smask[sp] = pm[i]; sval[sp] = pv[i]; ++sp; }
+        if (hmin >= giveup) break;
+        bool found = false;
+        while (sp > 0) {
+            --sp;
+            if (sval[sp] > hmin && sval[sp] > least(smask[sp])) { node = stack[sp]; found = true; break; }
+        }
+        if (!found) break;
+    }
+    if (hmin >= giveup) for (int s = 0; s < 8; ++s) h[s] = 1.0;
+    unsigned char q[8];
+    bool open = false;
+    for (int s = 0; s < 8; ++s) {
+        const double x = __builtin_ceil((h[s] + margin) * 255.0);
+        q[s] = x >= 255.0 ? 255 : (unsigned char)x;
+        open = open || q[s] < 255;
+    }
+    __builtin_memcpy(out + 4 + 2 * side, q, 8);
+    if (open) usable |= 1u << side;
+}
+out[3] = usable;
+return visits;
+#endif
+return 0;
 """
 
 
-@wp.func_native(_ESCAPE_SIDE)
-def escape_side(escape: wp.uint64, face: int) -> int:
-    """Face ``face``'s escaping side (``escape_sides``) from the mesh's array at ``escape`` (0: none)."""
+@wp.func_native(_HORIZON_FACE)
+def _horizon_face(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, k: int,
+                  escapes: wp.uint64, tol: float, margin: float, detail: float, giveup: float, budget: int,
+                  sides: int, outp: wp.uint64) -> int:
+    ...
+
+
+@wp.kernel(module="warprt_accel", enable_backward=False)
+def horizon_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, first: int,
+                   escapes: wp.uint64, tol: float, margin: float, detail: float, giveup: float, budget: int,
+                   sides: int, outp: wp.uint64):
+    """The escape horizons of the face at leaf position ``first`` + tid (see above)."""
+    _horizon_face(mid, nodes, kids, tris, root, first + wp.tid(), escapes, tol, margin, detail, giveup, budget, sides,
+                  outp)
+
+
+def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray, edges: tuple | None = None) -> np.ndarray | None:
+    """Every face's escape horizons (see above) as uint32 (F, 8), or None where no face has an
+    open sector (``edges``: the faces' ``edge_keys``). Meshes of up to HORIZON_MAX_TRIANGLES
+    triangles get the traversal's bounds (on the CPU, where the tree copy is); larger ones, and
+    other devices, the escaping faces alone (``escape_sides``: zero on their escaping side, the
+    other closed)."""
+    v = np.asarray(points, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    n = len(f)
+    edges = edge_keys(f) if edges is None else edges
+    known = escape_sides(v, f, edges)
+    known = np.zeros(n, dtype=np.uint8) if known is None else known
+    if n > HORIZON_MAX_TRIANGLES or not tree.usable or not tree.mesh.device.is_cpu:
+        if not known.any():
+            return None
+        h = np.zeros((n, 8), dtype=np.uint32)
+        a = v[f[:, 0]]
+        nrm = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
+        length = np.linalg.norm(nrm, axis=1)
+        h[:, :3] = (nrm / np.where(length > 0.0, length, 1.0)[:, None]).astype(np.float32).view(np.uint32)
+        h[:, 3] = known
+        h[:, 4:6] = np.where((known & 1 != 0)[:, None], 0, 0xFFFFFFFF)
+        h[:, 6:8] = np.where((known & 2 != 0)[:, None], 0, 0xFFFFFFFF)
+        return h
+    sides = 3
+    if closed_surface(f, edges):  # the outer side only: the front where the faces wind outwards
+        volume = np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()
+        sides = 1 if volume > 0.0 else 2
+    dev = tree.mesh.device
+    out = wp.empty(8 * n, dtype=wp.uint32, device=dev)
+    esc = wp.array(known, dtype=wp.uint8, device=dev)
+    tol = float(ESCAPE_TOL * float(np.abs(v).max(initial=0.0)))
+    pieces = max(1, min(os.cpu_count() or 1, n // 256))
+    bounds = np.linspace(0, n, pieces + 1).astype(int)
+
+    def run(j: int) -> None:
+        lo, hi = int(bounds[j]), int(bounds[j + 1])
+        if hi > lo:
+            wp.launch(horizon_kernel, dim=hi - lo, device=dev,
+                      inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
+                              HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr])
+
+    if pieces == 1:
+        run(0)
+    else:
+        with ThreadPoolExecutor(max_workers=pieces) as pool:
+            list(pool.map(run, range(pieces)))
+    h = out.numpy().reshape(n, 8)
+    return h if np.any(h[:, 3]) else None
+
+
+# Whether the ray along d (object space, any length) from the face and side ``code`` = 2 face +
+# side (0: along the face's normal, 1: against it) escapes the mesh by its horizons (see above);
+# and whether that side has an open sector at all. 0 on CUDA (no horizons there).
+_HORIZON_ESCAPES = r"""
+#if !defined(__CUDA_ARCH__)
+if (escape == 0) return 0;
+const unsigned int* w = (const unsigned int*)escape + 8 * (code >> 1);
+float A[3];
+__builtin_memcpy(A, w, 12);
+if (code & 1) { A[0] = -A[0]; A[1] = -A[1]; A[2] = -A[2]; }
+const float dx = d[0], dy = d[1], dz = d[2];
+const float dA = dx * A[0] + dy * A[1] + dz * A[2];
+if (!(dA > 0.0f)) return 0;
+const float a0 = fabsf(A[0]), a1 = fabsf(A[1]), a2 = fabsf(A[2]);
+const int ax = a0 <= a1 ? (a0 <= a2 ? 0 : 2) : (a1 <= a2 ? 1 : 2);
+float t0, t1, t2;  // A x (the axis ax)
+if (ax == 0) { t0 = 0.0f; t1 = A[2]; t2 = -A[1]; }
+else if (ax == 1) { t0 = -A[2]; t1 = 0.0f; t2 = A[0]; }
+else { t0 = A[1]; t1 = -A[0]; t2 = 0.0f; }
+const float il = 1.0f / sqrtf(t0 * t0 + t1 * t1 + t2 * t2);
+t0 *= il; t1 *= il; t2 *= il;
+const float b0 = A[1] * t2 - A[2] * t1, b1 = A[2] * t0 - A[0] * t2, b2 = A[0] * t1 - A[1] * t0;
+const float x = dx * t0 + dy * t1 + dz * t2, y = dx * b0 + dy * b1 + dz * b2;
+int s;
+if (y >= 0.0f) s = x > 0.0f ? (y < x ? 0 : 1) : (y > -x ? 2 : 3);
+else s = x < 0.0f ? (-y < -x ? 4 : 5) : (x < -y ? 6 : 7);
+const unsigned char q = ((const unsigned char*)(w + 4 + 2 * (code & 1)))[s];
+if (q == 255) return 0;
+const float h = (float)q * (1.0f / 255.0f);
+return dA * dA > h * h * (dx * dx + dy * dy + dz * dz) ? 1 : 0;
+#else
+return 0;
+#endif
+"""
+
+
+@wp.func_native(_HORIZON_ESCAPES)
+def horizon_escapes(escape: wp.uint64, code: int, d: wp.vec3) -> int:
+    """1 when the ray along d from face and side ``code`` (2 face + side) passes its horizon (see
+    above), so it meets no triangle of the mesh."""
+    ...
+
+
+_HORIZON_OPEN = r"""
+#if !defined(__CUDA_ARCH__)
+return escape == 0 ? 0 : (int)(((const unsigned int*)escape)[8 * face + 3] >> side & 1u);
+#else
+return 0;
+#endif
+"""
+
+
+@wp.func_native(_HORIZON_OPEN)
+def horizon_open(escape: wp.uint64, face: int, side: int) -> int:
+    """1 when side ``side`` (0: along the normal) of face ``face`` has an open sector (see above)."""
     ...
 
 

@@ -42,7 +42,7 @@ from .sampling import (
     SAMPLER_SOBOL, frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, sobol_packet, square_to_cos_power,
 )
 from .shading import fresnel, mul_sat, reflect, refract
-from .accel import PacketU, escape_side, lane, lane_i
+from .accel import PacketU, horizon_open, lane, lane_i
 from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketF, PacketI, make_trace
 
 STACK_SIZE = 16
@@ -356,7 +356,8 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             shaded = False
             lit = int(0)  # the lanes with a shading point
             sp_ = ShadePacket()
-            skip_ = PacketI()  # lanes on an escaping mesh face: that instance + 1 (accel.escape_sides)
+            skip_ = PacketI()  # lanes on a mesh face with escape horizons: that instance + 1
+            face_ = PacketI()  # and their face and side (2 face + side: accel.escape_horizons)
             lp = LightPacket()
             lr = PacketF()  # each lane's sample (rgb), or its light without the area lights
             lg = PacketF()
@@ -399,12 +400,14 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 L = local  # the local light so far (the lights are added below)
                                 lit = lit | (1 << k)
                                 if wp.static(F.meshes):
-                                    # on an escaping face of a mesh its shadow rays skip that mesh
-                                    # (accel.escape_sides: they leave towards the viewer's side)
+                                    # on a mesh face with escape horizons towards the viewer's
+                                    # side, its shadow rays above them skip that mesh
+                                    # (accel.escape_horizons, trace.occluded_packet)
                                     if h.kind == KIND_MESH:
-                                        side = escape_side(scene.insts[h.index].escape, h.face)
-                                        if (front and side & 1 != 0) or (not front and side & 2 != 0):
+                                        side = wp.where(front, 0, 1)
+                                        if horizon_open(scene.insts[h.index].escape, h.face, side) != 0:
                                             skip_[k] = h.index + 1
+                                            face_[k] = 2 * h.face + side
                                 sp_.px[k] = h.p[0]
                                 sp_.py[k] = h.p[1]
                                 sp_.pz[k] = h.p[2]
@@ -437,7 +440,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     if lit != 0:
                         # the point lights for all lanes at once (local + their sum, as alone)
                         if scene.n_plights > 0:
-                            pl = point_lights_packet(scene, sp_, lanes, lit, skip_)
+                            pl = point_lights_packet(scene, sp_, lanes, lit, skip_, face_)
                             for k in range(PACKET):
                                 if (lit >> k) & 1 != 0:
                                     lr[k] = lr[k] + lane(pl.r, k)
@@ -446,7 +449,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                     l_rays[k] += lane_i(pl.rays, k)
                         if wp.static(F.area_lights):
                             if scene.n_alights > 0:
-                                lp = area_lights_packet(scene, params, sp_, lanes, lit, skip_)
+                                lp = area_lights_packet(scene, params, sp_, lanes, lit, skip_, face_)
             # a shaded packet's samples as the film adds them, the 8 lanes at once (film.packet_samples)
             film_r = PacketF()
             film_g = PacketF()

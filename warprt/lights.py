@@ -330,14 +330,14 @@ def make_lights(F: Features) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def area_lights_packet(scene: SceneData, params: RenderParams, sp: ShadePacket, lanes: int,
-                           live: int, skip: PacketI) -> LightPacket:
+                           live: int, skip: PacketI, face: PacketI) -> LightPacket:
         """``area_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes``
         - 1 whose bit is set in ``live``; their path key is the camera ray's, ROOT_KEY), each
         lane's sum the same as alone, bit for bit: a rectangle's draws for all lanes at once
         (``shapes.rect_draw_packet``), then each lane's shadow ray; other emitters, and lanes a
         rectangle is drawn for by solid angle, one lane at a time. ``skip[k]`` = i + 1 where lane
-        k's point is on an escaping face of mesh instance i (its shadow rays pass that instance:
-        ``trace.occluded_packet``), else 0."""
+        k's point is on a face of mesh instance i with escape horizons, ``face[k]`` that face and
+        side (its shadow rays above them pass that instance: ``trace.occluded_packet``), else 0."""
         out = LightPacket()
         glossy = sp.glossy
         ux = PacketF()
@@ -417,7 +417,8 @@ def make_lights(F: Features) -> SimpleNamespace:
                     # the shadow rays of the lanes together (``shadow``'s set-up, then
                     # ``occluded_packet``; without secondary rays nothing is transparent)
                     test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
-                    shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip)
+                    shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
+                                           face)
                     lit = go & ~shut
                     for k in range(lanes):
                         if (lit >> k) & 1 == 0:
@@ -450,12 +451,13 @@ def make_lights(F: Features) -> SimpleNamespace:
         return out
 
     @wp.func
-    def point_lights_packet(scene: SceneData, sp: ShadePacket, lanes: int, live: int, skip: PacketI) -> LightPacket:
+    def point_lights_packet(scene: SceneData, sp: ShadePacket, lanes: int, live: int, skip: PacketI,
+                            face: PacketI) -> LightPacket:
         """``point_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes`` - 1
         whose bit is set in ``live``), each lane's sum the same as alone, bit for bit: per light,
         the geometry for all lanes at once (``point_light_packet``), each lane's colour, then the
         lanes' shadow rays together (``occluded_packet``; a kernel without secondary rays has no
-        transparent materials); ``skip`` as for ``area_lights_packet``."""
+        transparent materials); ``skip`` and ``face`` as for ``area_lights_packet``."""
         out = LightPacket()
         glossy = sp.glossy
         dist = PacketF()
@@ -493,7 +495,8 @@ def make_lights(F: Features) -> SimpleNamespace:
                 go = go | (1 << k)
             if go == 0:
                 continue
-            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip)
+            blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
+                                      face)
             lit = go & ~blocked
             # each lit lane's mul_sat(1, mul_sat(I, f)), the 8 at once
             inv_sq = int(0)

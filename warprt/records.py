@@ -178,7 +178,7 @@ class InstRec:
     tree_root: int
     balls: wp.uint64  # the asset's interior balls (accel.interior_balls) while shadow rays may use them
     n_balls: int  # 0: none (CUDA, a mesh that does not qualify, or build.DeviceScene's rules)
-    escape: wp.uint64  # the asset's escaping faces (accel.escape_sides; 0: none)
+    escape: wp.uint64  # the asset's escape horizons (accel.escape_horizons; 0: none)
 
 
 @wp.struct

@@ -21,8 +21,8 @@ from types import SimpleNamespace
 import warp as wp
 
 from .accel import (
-    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, lane, lane_i, mesh_balls_hit, mesh_tree_occluded,
-    mesh_tree_packet, mesh_tree_ray, packet_node, safe_inverse, slab,
+    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, horizon_escapes, lane, lane_i, mesh_balls_hit,
+    mesh_tree_occluded, mesh_tree_packet, mesh_tree_ray, packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
@@ -1185,7 +1185,8 @@ def make_trace(F: Features) -> SimpleNamespace:
 
     @wp.func
     def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
-                        dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, skip: PacketI) -> int:
+                        dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, skip: PacketI,
+                        face: PacketI) -> int:
         """The lanes (of the bit mask ``lanes``, all below n) whose shadow ray (o, d) over (0, t_max)
         a surface blocks, in a kernel without transparent materials, where ``transmittance`` is 0
         or 1: the spheres (without the analytic BVH), planes and BVH for all lanes at once
@@ -1193,8 +1194,9 @@ def make_trace(F: Features) -> SimpleNamespace:
         the mesh instances' boxes for all lanes at once (``box_hits_packet``), then each lane in
         a box through its triangles. A lane's answer is its own: the tests are the scalar ones,
         and a node test looser than the scalar traversal's only adds leaves to test. A lane k with
-        skip[k] = i + 1 leaves an escaping face of instance i (``accel.escape_sides``), whose
-        triangles its ray cannot meet: that instance is not tested for it (0: none skipped)."""
+        skip[k] = i + 1 leaves face and side face[k] (2 face + side) of instance i, which has
+        escape horizons (``accel.escape_horizons``): where its ray passes them it cannot meet
+        that instance's triangles, which are not tested for it (skip 0: none skipped)."""
         blocked = int(0)
         left = lanes
         use_bvh = scene.bvh_root >= 0
@@ -1302,11 +1304,15 @@ def make_trace(F: Features) -> SimpleNamespace:
         if wp.static(F.meshes):
             # each instance's box for all lanes at once, then each lane in it through the triangles
             for i in range(scene.n_inst):
-                # (a lane whose ray leaves an escaping face of this instance skips it: skip = i + 1)
+                # (a lane whose ray leaves this instance's surface above the face's escape
+                # horizons skips it: skip = i + 1)
                 own = int(0)
                 for k in range(n):
                     if skip[k] == i + 1:
-                        own = own | (1 << k)
+                        if (left >> k) & 1 != 0:
+                            d_obj = dir_to_object(instance_pose(scene, i, time[k]), wp.vec3(dx[k], dy[k], dz[k]))
+                            if horizon_escapes(scene.insts[i].escape, face[k], d_obj) != 0:
+                                own = own | (1 << k)
                 inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left & ~own, ox, oy, oz, dx, dy, dz, 0.0,
                                          t_max)
                 if inside == 0:
