@@ -1184,8 +1184,8 @@ def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(n
         for side in (0, 1):
             assert np.all(sectors[known >> side & 1 != 0, side] == 0)
     if accel.closed_surface(f):
-        outer = 1 if name != "icosphere wound inwards" else 0  # (the side not computed)
-        assert np.all(sectors[:, outer] == 255) and np.all(h[:, 3] >> outer & 1 == 0)
+        inner = 1 if name != "icosphere wound inwards" else 0  # (the side not computed)
+        assert np.all(sectors[:, inner] == 255) and np.all(h[:, 3] >> inner & 1 == 0)
     tri = v[f].astype(np.float64)
     rng = np.random.default_rng(29)
     n_rays = 6000

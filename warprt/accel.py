@@ -987,7 +987,8 @@ auto fmax = [](double a, double b) { return a > b ? a : b; };
 auto fmin = [](double a, double b) { return a < b ? a : b; };
 auto fabs = [](double a) { return a < 0.0 ? -a : a; };
 auto sqrt = [](double a) { return __builtin_sqrt(a); };
-auto sub = [](const double* a, const double* b, double* r) { r[0] = a[0] - b[0]; r[1] = a[1] - b[1]; r[2] = a[2] - b[2]; };
+auto sub = [](const double* a, const double* b, double* r) {
+    r[0] = a[0] - b[0]; r[1] = a[1] - b[1]; r[2] = a[2] - b[2]; };
 auto dot = [](const double* a, const double* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; };
 auto cross = [](const double* a, const double* b, double* r) {
     r[0] = a[1] * b[2] - a[2] * b[1]; r[1] = a[2] * b[0] - a[0] * b[2]; r[2] = a[0] * b[1] - a[1] * b[0]; };
@@ -1007,7 +1008,8 @@ if (!(len > 0.0)) return 0;
 const float a32[3] = {(float)(nn[0] / len), (float)(nn[1] / len), (float)(nn[2] / len)};
 __builtin_memcpy(out, a32, 12);
 const double PI = 3.14159265358979323846, SECTOR = PI / 4.0;
-double cf[3] = {(F[0][0] + F[1][0] + F[2][0]) / 3.0, (F[0][1] + F[1][1] + F[2][1]) / 3.0, (F[0][2] + F[1][2] + F[2][2]) / 3.0};
+double cf[3];  // the face's centre and the radius of its ball
+for (int i = 0; i < 3; ++i) cf[i] = (F[0][i] + F[1][i] + F[2][i]) / 3.0;
 double rf = 0.0;
 for (int j = 0; j < 3; ++j) { double w[3]; sub(F[j], cf, w); rf = fmax(rf, sqrt(dot(w, w))); }
 rf = rf * (1.0 + 1e-9) + tol;
@@ -1018,7 +1020,8 @@ double cen[8][2], ends[8][4];
 for (int s = 0; s < 8; ++s) {
     const double c = (s + 0.5) * SECTOR, p0 = s * SECTOR - margin, p1 = (s + 1) * SECTOR + margin;
     cen[s][0] = __builtin_cos(c); cen[s][1] = __builtin_sin(c);
-    ends[s][0] = __builtin_cos(p0); ends[s][1] = __builtin_sin(p0); ends[s][2] = __builtin_cos(p1); ends[s][3] = __builtin_sin(p1);
+    ends[s][0] = __builtin_cos(p0); ends[s][1] = __builtin_sin(p0);
+    ends[s][2] = __builtin_cos(p1); ends[s][3] = __builtin_sin(p1);
 }
 const double cw = __builtin_cos(0.5 * SECTOR + margin), sw = __builtin_sin(0.5 * SECTOR + margin);
 unsigned int usable = 0u;
@@ -1045,7 +1048,11 @@ for (int side = 0; side < 2; ++side) {
     for (int j = 0; j < 3; ++j) flo = fmin(flo, dot(F[j], A));
     double h[8] = {0, 0, 0, 0, 0, 0, 0, 0};
     double hmin = 0.0;
-    auto least = [&](int m) { double v = 2.0; for (int s = 0; s < 8; ++s) if (m >> s & 1) v = fmin(v, h[s]); return v; };
+    auto least = [&](int m) {  // the lowest bound over the sectors of mask m
+        double v = 2.0;
+        for (int s = 0; s < 8; ++s) if (m >> s & 1) v = fmin(v, h[s]);
+        return v;
+    };
     // the sectors (bit s: sector s) whose azimuths come within ``half`` (its sine and cosine,
     // plus the margin) of direction w's: the sector's centre within half + 22.5 degrees
     auto sectors = [&](const double* w, double sh, double ch) -> int {
@@ -1071,7 +1078,8 @@ for (int side = 0; side < 2; ++side) {
         const double dist = sqrt(dot(w, w)), R = rf + r;
         if (dist > R * 1.0001) {
             sb = R / dist;
-            const double cb = sqrt(1.0 - sb * sb), se = fmax(-1.0, fmin(1.0, dot(w, A) / dist)), ce = sqrt(1.0 - se * se);
+            const double cb = sqrt(1.0 - sb * sb), se = fmax(-1.0, fmin(1.0, dot(w, A) / dist));
+            const double ce = sqrt(1.0 - se * se);
             if (ce * cb - se * sb > 0.0) {  // the cap's top below the pole
                 v = fmin(v, fmax(0.0, se * cb + ce * sb));
                 if (v <= floor) return v;
@@ -1097,7 +1105,8 @@ for (int side = 0; side < 2; ++side) {
         double hb = -1e300;
         for (int j = 0; j < 3; ++j) hb = fmax(hb, dot(T[j], A));
         if (hb <= flo + tol) return;  // behind (or on) the face's plane
-        double ct[3] = {(T[0][0] + T[1][0] + T[2][0]) / 3.0, (T[0][1] + T[1][1] + T[2][1]) / 3.0, (T[0][2] + T[1][2] + T[2][2]) / 3.0};
+        double ct[3];
+        for (int i = 0; i < 3; ++i) ct[i] = (T[0][i] + T[1][i] + T[2][i]) / 3.0;
         double rt = 0.0;
         for (int j = 0; j < 3; ++j) { double w[3]; sub(T[j], ct, w); rt = fmax(rt, sqrt(dot(w, w))); }
         int m; double sb;
@@ -1122,7 +1131,8 @@ for (int side = 0; side < 2; ++side) {
                 const double mx = dot(mt, t), my = dot(mt, b), rho = sqrt(mx * mx + my * my);
                 for (int s = 0; s < 8; ++s) {
                     const double cmin = -(mx * cen[s][0] + my * cen[s][1]) >= cw * rho ? -1.0
-                        : fmin(mx * ends[s][0] + my * ends[s][1], mx * ends[s][2] + my * ends[s][3]) / fmax(rho, 1e-300);
+                        : fmin(mx * ends[s][0] + my * ends[s][1], mx * ends[s][2] + my * ends[s][3])
+                          / fmax(rho, 1e-300);
                     const double X = -rho * cmin;
                     val[s] = fmin(val[s], X <= 0.0 ? 0.0 : X / sqrt(X * X + am * am));
                 }
@@ -1156,8 +1166,11 @@ for (int side = 0; side < 2; ++side) {
             double poly[9][3], tmp[9][3]; int np = 3;
             double f2[3][2];
             for (int j = 0; j < 3; ++j) { f2[j][0] = dot(F[j], t); f2[j][1] = dot(F[j], b); }
-            for (int j = 0; j < 3; ++j) { poly[j][0] = dot(T[j], t); poly[j][1] = dot(T[j], b); poly[j][2] = dot(T[j], A); }
-            const double orient = (f2[1][0] - f2[0][0]) * (f2[2][1] - f2[0][1]) - (f2[1][1] - f2[0][1]) * (f2[2][0] - f2[0][0]);
+            for (int j = 0; j < 3; ++j) {
+                poly[j][0] = dot(T[j], t); poly[j][1] = dot(T[j], b); poly[j][2] = dot(T[j], A);
+            }
+            const double orient = (f2[1][0] - f2[0][0]) * (f2[2][1] - f2[0][1])
+                                  - (f2[1][1] - f2[0][1]) * (f2[2][0] - f2[0][0]);
             for (int e = 0; e < 3 && np > 0; ++e) {
                 const double* pa = f2[e]; const double* pb = f2[(e + 1) % 3];
                 int n2 = 0;
@@ -1260,7 +1273,8 @@ def horizon_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.u
                   outp)
 
 
-def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray, edges: tuple | None = None) -> np.ndarray | None:
+def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
+                    edges: tuple | None = None) -> np.ndarray | None:
     """Every face's escape horizons (see above) as uint32 (F, 8), or None where no face has an
     open sector (``edges``: the faces' ``edge_keys``). Meshes of up to HORIZON_MAX_TRIANGLES
     triangles get the traversal's bounds (on the CPU, where the tree copy is); larger ones, and
