@@ -781,25 +781,31 @@ def closed_surface(faces: np.ndarray, edges: tuple | None = None) -> bool:
     return bool(len(faces) > 0 and np.array_equal(key[0::2], key[1::2]) and np.all(key[1:-1:2] != key[2::2]))
 
 
-def _probe(mesh: "wp.Mesh", pts: np.ndarray, rays: int) -> np.ndarray:
-    """``interior_probe_kernel`` over pts, in as many pieces as the CPU has cores (a CPU launch
-    runs on one thread; a probe deep inside a large mesh visits much of its tree)."""
-    dev = mesh.device
-    out = wp.zeros(len(pts), dtype=float, device=dev)
-    a = wp.array(pts.astype(np.float32), dtype=wp.vec3, device=dev)
-    pieces = min(os.cpu_count() or 1, max(1, len(pts) // 1024)) if dev.is_cpu else 1
-    bounds = np.linspace(0, len(pts), pieces + 1).astype(int)
+def _in_pieces(n: int, smallest: int, device, launch) -> None:
+    """``launch(lo, hi)`` over [0, n) in as many pieces as the CPU has cores, none smaller than
+    ``smallest`` (a CPU launch runs on one thread); one piece on other devices."""
+    pieces = min(os.cpu_count() or 1, max(1, n // smallest)) if device.is_cpu else 1
+    bounds = np.linspace(0, n, pieces + 1).astype(int)
 
     def run(k: int) -> None:
-        lo, hi = int(bounds[k]), int(bounds[k + 1])
-        if hi > lo:
-            wp.launch(interior_probe_kernel, dim=hi - lo, device=dev, inputs=[mesh.id, a[lo:hi], rays, out[lo:hi]])
+        if bounds[k + 1] > bounds[k]:
+            launch(int(bounds[k]), int(bounds[k + 1]))
 
     if pieces == 1:
         run(0)
     else:
         with ThreadPoolExecutor(max_workers=pieces) as pool:
             list(pool.map(run, range(pieces)))
+
+
+def _probe(mesh: "wp.Mesh", pts: np.ndarray, rays: int) -> np.ndarray:
+    """``interior_probe_kernel`` over pts, split over the cores (a probe deep inside a large mesh
+    visits much of its tree)."""
+    dev = mesh.device
+    out = wp.zeros(len(pts), dtype=float, device=dev)
+    a = wp.array(pts.astype(np.float32), dtype=wp.vec3, device=dev)
+    _in_pieces(len(pts), 1024, dev, lambda lo, hi: wp.launch(interior_probe_kernel, dim=hi - lo, device=dev,
+                                                             inputs=[mesh.id, a[lo:hi], rays, out[lo:hi]]))
     return out.numpy().astype(np.float64)
 
 
@@ -899,6 +905,15 @@ ESCAPE_BUDGET = 50_000_000
 ESCAPE_MAX_TRIANGLES = 500_000  # (larger meshes: none, for the build's time: about 1 s a million)
 
 
+def _unit_normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces' unit normals (their winding's; zero-area faces: the zero vector) and the
+    cross products' lengths, float64."""
+    a = v[f[:, 0]]
+    n = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
+    length = np.linalg.norm(n, axis=1)
+    return n / np.where(length > 0.0, length, 1.0)[:, None], length
+
+
 def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = None) -> np.ndarray | None:
     """Each face's escaping side (see above) as uint8, or None when none escapes (``edges``: the
     faces' ``edge_keys``)."""
@@ -907,11 +922,8 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
     if len(f) == 0 or len(f) > ESCAPE_MAX_TRIANGLES:
         return None
     tol = ESCAPE_TOL * float(np.abs(v).max())
-    a = v[f[:, 0]]
-    n = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
-    length = np.linalg.norm(n, axis=1)
-    n = n / np.where(length > 0.0, length, 1.0)[:, None]
-    off = np.einsum("fj,fj->f", n, a)
+    n, length = _unit_normals(v, f)
+    off = np.einsum("fj,fj->f", n, v[f[:, 0]])
 
     def verdict(faces_, pts):  # 1: every point of pts (per face, or shared) behind, 2: in front
         h = np.einsum("fj,fkj->fk", n[faces_], pts) if pts.ndim == 3 else n[faces_] @ pts.T
@@ -1277,23 +1289,20 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
                     edges: tuple | None = None) -> np.ndarray | None:
     """Every face's escape horizons (see above) as uint32 (F, 8), or None where no face has an
     open sector (``edges``: the faces' ``edge_keys``). Meshes of up to HORIZON_MAX_TRIANGLES
-    triangles get the traversal's bounds (on the CPU, where the tree copy is); larger ones, and
-    other devices, the escaping faces alone (``escape_sides``: zero on their escaping side, the
-    other closed)."""
+    triangles get the traversal's bounds over the tree copy (a CPU mesh's: only the CPU has
+    one); larger ones, and trees the copy cannot take, the escaping faces alone
+    (``escape_sides``: zero on their escaping side, the other closed)."""
     v = np.asarray(points, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     n = len(f)
     edges = edge_keys(f) if edges is None else edges
     known = escape_sides(v, f, edges)
     known = np.zeros(n, dtype=np.uint8) if known is None else known
-    if n > HORIZON_MAX_TRIANGLES or not tree.usable or not tree.mesh.device.is_cpu:
+    if n > HORIZON_MAX_TRIANGLES or not tree.usable:
         if not known.any():
             return None
         h = np.zeros((n, 8), dtype=np.uint32)
-        a = v[f[:, 0]]
-        nrm = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a)
-        length = np.linalg.norm(nrm, axis=1)
-        h[:, :3] = (nrm / np.where(length > 0.0, length, 1.0)[:, None]).astype(np.float32).view(np.uint32)
+        h[:, :3] = _unit_normals(v, f)[0].astype(np.float32).view(np.uint32)
         h[:, 3] = known
         h[:, 4:6] = np.where((known & 1 != 0)[:, None], 0, 0xFFFFFFFF)
         h[:, 6:8] = np.where((known & 2 != 0)[:, None], 0, 0xFFFFFFFF)
@@ -1306,21 +1315,10 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
     out = wp.empty(8 * n, dtype=wp.uint32, device=dev)
     esc = wp.array(known, dtype=wp.uint8, device=dev)
     tol = float(ESCAPE_TOL * float(np.abs(v).max(initial=0.0)))
-    pieces = max(1, min(os.cpu_count() or 1, n // 256))
-    bounds = np.linspace(0, n, pieces + 1).astype(int)
-
-    def run(j: int) -> None:
-        lo, hi = int(bounds[j]), int(bounds[j + 1])
-        if hi > lo:
-            wp.launch(horizon_kernel, dim=hi - lo, device=dev,
-                      inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
-                              HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr])
-
-    if pieces == 1:
-        run(0)
-    else:
-        with ThreadPoolExecutor(max_workers=pieces) as pool:
-            list(pool.map(run, range(pieces)))
+    _in_pieces(n, 256, dev, lambda lo, hi: wp.launch(
+        horizon_kernel, dim=hi - lo, device=dev,
+        inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
+                HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr]))
     h = out.numpy().reshape(n, 8)
     return h if np.any(h[:, 3]) else None
 

@@ -222,7 +222,7 @@ class DeviceScene:
         wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
         if tree is not None and (tree.balls is not None or tree.escape is not None):
             tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
-            tree.escape = None  # nor its escaping faces
+            tree.escape = None  # nor its escape horizons
             rows = self.data.insts.numpy()
             for i, k in enumerate(self.instance_assets):
                 if k == key:
