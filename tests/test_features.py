@@ -317,14 +317,15 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     for mode in ("cosine", "uniform"):
         scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(
             light_sampling=mode, sampler=sampler)
-        ren = warprt.Renderer(scene, device=device)
+        ren = warprt.Renderer(scene, device=device, packets=True)  # CUDA's default is one by one
         assert ren.packets and ren.features.area_lights and not ren.features.secondary
         ra = ren.render(spp=spp, seed=4, progress=False)
         a = ra.image
         a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
         with monkeypatch.context() as m:
             m.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
-            alone = warprt.Renderer(scene, device=device)  # every camera sample alone: one a pass and thread
+            # every camera sample alone: one a pass and thread
+            alone = warprt.Renderer(scene, device=device, packets=True)
             rb = alone.render(spp=spp, seed=4, progress=False, pass_spp=1)
             b = rb.image
             b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
@@ -380,14 +381,14 @@ def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeyp
     scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(sampler=sampler)
     if not bvh:
         monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
-    ren = warprt.Renderer(scene, device=device)
+    ren = warprt.Renderer(scene, device=device, packets=True)  # CUDA's default is one by one
     assert ren.packets and not ren.features.secondary and not ren.features.area_lights
     assert (ren.built.analytic_bvh is not None) == bvh
     spp = PACKET + 3  # a full packet and a part one per pixel
     a = ren.render(spp=spp, seed=4, progress=False).image
     a_adaptive = ren.render(spp=8, seed=4, progress=False, adaptive=True).image
     monkeypatch.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
-    alone = warprt.Renderer(scene, device=device)  # every camera sample alone: one a pass and thread
+    alone = warprt.Renderer(scene, device=device, packets=True)  # every camera sample alone: one a pass and thread
     b = alone.render(spp=spp, seed=4, progress=False, pass_spp=1).image
     b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
     assert a.tobytes() == b.tobytes()
