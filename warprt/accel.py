@@ -459,16 +459,20 @@ class MeshTree:
         self.slots = slots
         self.balls: wp.array | None = None  # interior balls (``interior_balls``), set by ``find_balls``
         self.escape: wp.array | None = None  # escape horizons (``escape_horizons``), set by ``find_balls``
+        self.cones: wp.array | None = None  # normal cones (``normal_cones``), set by ``find_balls``
         self.refresh()
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
-        """Find the mesh's interior balls and escape horizons (None where it has none)."""
+        """Find the mesh's interior balls, escape horizons and normal cones (None where it has
+        none)."""
         edges = edge_keys(faces)
         blocks = interior_balls(self.mesh, points, faces, edges)
         self.balls = None if blocks is None else wp.array(blocks.reshape(-1), dtype=wp.float32,
                                                           device=self.mesh.device)
         h = escape_horizons(self, points, faces, edges)
         self.escape = None if h is None else wp.array(h.reshape(-1), dtype=wp.uint32, device=self.mesh.device)
+        c = normal_cones(self, points, faces, edges)
+        self.cones = None if c is None else wp.array(c.reshape(-1), dtype=wp.float32, device=self.mesh.device)
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
@@ -485,16 +489,18 @@ class MeshTree:
         if not self.usable:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
-                    balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr)
+                    balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr, cones=0)
 
     def ball_fields(self) -> dict:
-        """The instance record's ball fields (none when the mesh has no interior balls)."""
+        """The instance record's fields for shadow rays from outside the solid: its interior balls
+        and normal cones (none where the mesh has none)."""
+        cones = 0 if self.cones is None or not self.usable else self.cones.ptr
         if self.balls is None or not self.usable:
-            return dict(balls=0, n_balls=0)
-        return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4)
+            return dict(balls=0, n_balls=0, cones=cones)
+        return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4, cones=cones)
 
 
-NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, balls=0, n_balls=0, escape=0)
+NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, balls=0, n_balls=0, escape=0, cones=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -664,7 +670,8 @@ def mesh_tree_ray(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.ui
 # normalize(cross(q - p, r - p)) and the same products). The answer is the one the nearest-hit
 # loop gives (an occluder exists or not), without ordering the hits or stepping over the face the
 # ray leaves: 0.89x the time of ``mesh_tree_ray`` with that check on scene (d)'s shadow rays, a
-# third of which are blocked (docs/benchmarks.md, levers).
+# third of which are blocked (docs/benchmarks.md, levers). With a closed mesh's normal cones
+# (``normal_cones``, below; 0: none) it skips the children whose every triangle the ray leaves.
 _TREE_OCCLUDED = _splice(r"""
 #if !defined(__CUDA_ARCH__)
 if (nodes != 0) {
@@ -675,6 +682,10 @@ if (nodes != 0) {
     int sp = 0;
     int node = root;
     bool blocked = false;
+    // the normal cones (``normal_cones``; 0: none) and the ray's unit direction for them
+    const float* CN = (const float*)cones;
+    const float dl = 1.0f / sqrtf(dx * dx + dy * dy + dz * dz);
+    const float ux = dx * dl, uy = dy * dl, uz = dz * dl;
 @SHEAR@
     auto tri_test = [&](int k) {
 @WOOP@
@@ -688,6 +699,11 @@ if (nodes != 0) {
 @NODE_BOXES@
         bool h0 = n0 <= f0 * 1.0000004f && n0 <= t_max;
         bool h1 = n1 <= f1 * 1.0000004f && n1 <= t_max;
+        if (CN != nullptr) {  // a child whose every triangle the ray leaves is skipped
+            const float* c = CN + 8 * node;
+            h0 = h0 && ux * c[0] + uy * c[1] + uz * c[2] < c[3];
+            h1 = h1 && ux * c[4] + uy * c[5] + uz * c[6] < c[7];
+        }
         if (h0 && k0 < 0) { tri_test(-k0 - 1); h0 = false; }
         if (h1 && k1 < 0) { tri_test(-k1 - 1); h1 = false; }
         if (blocked) return 1;
@@ -710,10 +726,11 @@ return -1;
 
 
 @wp.func_native(_TREE_OCCLUDED)
-def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int,
+def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, cones: wp.uint64,
                        o: wp.vec3, d: wp.vec3, t_max: float) -> int:
     """1 when a triangle blocks (o, o + t_max·d), 0 when none does, -1 to ask the nearest-hit
-    loop (see above)."""
+    loop (see above); ``cones``: the mesh's normal cones where both ends lie outside its solid,
+    else 0."""
     ...
 
 # Interior balls of a closed mesh (shadow rays only): balls lying wholly inside the solid the
@@ -886,6 +903,80 @@ return 0;
 def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: float) -> int:
     """1 when (o, o + t_max·d) passes through one of the n interior balls at ``balls`` (see above)."""
     ...
+
+
+# Normal cones of a closed mesh (shadow rays only): a shadow segment whose two ends lie outside
+# the solid (winding number 0) and which crosses the surface crosses it at least twice, once on
+# the way in (against a triangle's outward normal n: n.d < 0) and once on the way out (n.d > 0):
+# the winding number it starts and ends with is the same, and each crossing changes it by one.
+# So the any-hit traversal (``mesh_tree_occluded``) may skip every triangle the ray can only leave
+# (n.d > 0) and still gives the same answer: for each child of each node of the tree copy a cone
+# (unit axis a, s) holds the outward normals of the child's subtree (each within arcsin(s -
+# CONE_MARGIN) of a), and a ray whose unit direction has u.a >= s skips the child. A ray leaving a
+# mesh's own surface skips the patch around its origin (all faces it leaves), where its traversal
+# otherwise goes deepest (docs/benchmarks.md, levers). The cones bound each child's normals from
+# its own children's cones (axis: the normalised sum of the subtree's unit normals), in float64;
+# the margin covers the float32 axis, s and ray direction. A mesh qualifies when every edge is
+# shared by exactly two triangles that run it in opposite directions (closed and consistently
+# wound: the winding number is then well defined); "outward" is the side its signed volume says.
+# Like the interior balls, the cones need the segment's origin outside the solid, and are given
+# under the same rules (``build.DeviceScene.refresh_balls``).
+CONE_MARGIN = 1.0e-5
+
+
+def normal_cones(tree: MeshTree, points: np.ndarray, faces: np.ndarray, edges: tuple | None = None
+                 ) -> np.ndarray | None:
+    """Each node of the tree copy's two cones (see above), (slots, 2, 4) float32: the child's axis
+    and s (2: none, the child's normals spread too far); None for a mesh that is not closed and
+    consistently wound, or a tree the copy could not take."""
+    if not tree.usable:
+        return None
+    f = np.asarray(faces, dtype=np.int64)
+    key, order = edge_keys(f) if edges is None else edges
+    if not closed_surface(f, (key, order)):
+        return None
+    # the two uses of each edge run it in opposite directions (rows as in ``edge_keys``)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    ascending = (e[:, 0] < e[:, 1])[order]
+    if not np.all(ascending[0::2] != ascending[1::2]):
+        return None
+    v = np.asarray(points, dtype=np.float64)
+    volume = np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()
+    outward = 1.0 if volume > 0.0 else -1.0
+    corners = tree.tris.numpy().astype(np.float64).reshape(-1, 3, 3)  # in leaf order
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    if not np.all(length > 0.0):
+        return None
+    normal *= outward / length
+    kids = tree.kids.numpy().reshape(-1, 2)
+    levels = []  # the inner nodes level by level from the root
+    frontier = np.array([tree.root])
+    while frontier.size:
+        levels.append(frontier)
+        below = kids[frontier].reshape(-1)
+        frontier = below[below >= 0]
+    axis = np.zeros((len(kids), 3))
+    total = np.zeros((len(kids), 3))  # the sum of the subtree's unit normals
+    half = np.zeros(len(kids))  # the cone's half angle
+    out = np.zeros((len(kids), 2, 4), dtype=np.float32)
+    out[:, :, 3] = 2.0
+    for nodes in reversed(levels):  # children before their parents
+        k = kids[nodes]
+        leaf = k < 0
+        inner = np.where(leaf, 0, k)
+        c_axis = np.where(leaf[..., None], normal[np.where(leaf, -k - 1, 0)], axis[inner])
+        c_total = np.where(leaf[..., None], c_axis, total[inner])
+        c_half = np.where(leaf, 0.0, half[inner])
+        t = c_total.sum(axis=1)
+        size = np.linalg.norm(t, axis=1)
+        a = t / np.where(size > 0.0, size, 1.0)[:, None]
+        spread = np.arccos(np.clip(np.einsum("ni,nci->nc", a, c_axis), -1.0, 1.0)) + c_half
+        axis[nodes], total[nodes] = a, t
+        half[nodes] = np.where(size > 1e-9, spread.max(axis=1), np.pi)
+        out[nodes, :, :3] = c_axis
+        out[nodes, :, 3] = np.where(c_half < 0.5 * np.pi, np.sin(np.minimum(c_half, 0.5 * np.pi)) + CONE_MARGIN, 2.0)
+    return out
 
 
 # Escaping faces (shadow rays from a mesh's own surface): a face of a mesh whose every vertex lies
@@ -1511,3 +1602,4 @@ def mesh_tree_packet(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp
     """Each lane's nearest triangle of mesh ``mid`` in [0, t_max] (t -1 and face -1 for none; see
     above); 0 where the lanes must go one by one instead (``mesh_tree_ray``), 1 when done."""
     ...
+

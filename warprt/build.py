@@ -90,7 +90,7 @@ class DeviceScene:
                                            **({"bvh_leaf_size": 1} if dev.is_cpu else {}))
                             tree = MeshTree(mesh, len(f32)) if dev.is_cpu else None
                             if tree is not None:
-                                tree.find_balls(v32, f32)  # interior balls for shadow rays (accel.py)
+                                tree.find_balls(v32, f32)  # balls, horizons, cones for shadow rays (accel.py)
                             self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
                         mesh, vn, tree = self.assets[key]
                         trees.append(tree)
@@ -173,34 +173,39 @@ class DeviceScene:
         self.data.alights.assign(rows)
 
     def refresh_balls(self) -> None:
-        """Give each mesh instance its asset's interior balls (``accel.interior_balls``) where a
-        shadow ray's origin cannot be inside the solid: while the camera's eye (with its lens and
-        motion) and every light stay outside the instance's box, a shading point the camera sees
-        is outside the solid. An asset whose points were moved (``set_mesh_points``) has none."""
+        """Give each mesh instance its asset's interior balls (``accel.interior_balls``) and normal
+        cones (``accel.normal_cones``) where a shadow ray's origin cannot be inside the solid:
+        while the camera's eye (with its lens and motion) and every light stay outside the
+        instance's box, a shading point the camera sees is outside the solid. An asset whose
+        points were moved (``set_mesh_points``) has neither."""
         d = self.data
         if d.n_inst == 0:
             return
         trees = [self.assets[key][2] for key in self.instance_assets]
-        if not any(t is not None and t.balls is not None for t in trees) and not self._balls_given:
+        given = any(t is not None and (t.balls is not None or t.cones is not None) for t in trees)
+        if not given and not self._balls_given:
             return  # (none to give, and none given)
         self._balls_given = False
         regions = _light_regions(self.scene)
         cam = self.scene.camera
-        if cam.keyframes:
-            regions = None  # (a keyframed path: not checked; no balls)
+        if cam.keyframes or self.scene.render.t_min > 0.0:
+            # (a keyframed path: not checked; camera rays that start past the eye can start inside
+            # a solid and see its inner side: no balls, no cones)
+            regions = None
         elif regions is not None:
             eyes = np.array([cam.eye] + ([cam.eye_end] if cam.eye_end is not None else []), dtype=np.float64)
             pad = float(cam.aperture) + 1e-6 * (1.0 + float(np.abs(eyes).max()))
             regions.append((eyes.min(axis=0) - pad, eyes.max(axis=0) + pad))
         rows = d.insts.numpy()
         for i, tree in enumerate(trees):
-            fields = dict(balls=0, n_balls=0)
+            fields = dict(balls=0, n_balls=0, cones=0)
             if tree is not None and regions is not None:
                 lo, hi = rows["lo"][i], rows["hi"][i]
                 if not any(np.all(rlo <= hi) and np.all(lo <= rhi) for rlo, rhi in regions):
                     fields = tree.ball_fields()
-            rows["balls"][i], rows["n_balls"][i] = fields["balls"], fields["n_balls"]
-            self._balls_given |= fields["n_balls"] > 0
+            for name in ("balls", "n_balls", "cones"):
+                rows[name][i] = fields[name]
+            self._balls_given |= fields["n_balls"] > 0 or fields["cones"] != 0
         d.insts.assign(rows)
 
     def set_mesh_points(self, shape_index: int, points) -> None:
@@ -220,9 +225,10 @@ class DeviceScene:
         if tree is not None:
             tree.refresh()  # same topology and root: the instance records stay valid
         wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
-        if tree is not None and (tree.balls is not None or tree.escape is not None):
+        if tree is not None and (tree.balls is not None or tree.escape is not None or tree.cones is not None):
             tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
             tree.escape = None  # nor its escape horizons
+            tree.cones = None  # nor its normal cones
             rows = self.data.insts.numpy()
             for i, k in enumerate(self.instance_assets):
                 if k == key:

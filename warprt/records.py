@@ -179,6 +179,7 @@ class InstRec:
     balls: wp.uint64  # the asset's interior balls (accel.interior_balls) while shadow rays may use them
     n_balls: int  # 0: none (CUDA, a mesh that does not qualify, or build.DeviceScene's rules)
     escape: wp.uint64  # the asset's escape horizons (accel.escape_horizons; 0: none)
+    cones: wp.uint64  # the asset's normal cones (accel.normal_cones) while shadow rays may use them
 
 
 @wp.struct

@@ -1051,7 +1051,7 @@ def make_trace(F: Features) -> SimpleNamespace:
             if mesh_balls_hit(scene.insts[i].balls, scene.insts[i].n_balls, o_obj, d_obj, t_max) != 0:
                 return True
         occ = mesh_tree_occluded(scene.insts[i].tree_nodes, scene.insts[i].tree_kids, scene.insts[i].tree_tris,
-                                 scene.insts[i].tree_root, o_obj, d_obj, t_max)
+                                 scene.insts[i].tree_root, scene.insts[i].cones, o_obj, d_obj, t_max)
         if occ < 0:
             if mesh_first_hit(scene.insts[i], o_obj, d_obj, t_max).index >= 0:
                 occ = 1
