@@ -1602,4 +1602,3 @@ def mesh_tree_packet(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp
     """Each lane's nearest triangle of mesh ``mid`` in [0, t_max] (t -1 and face -1 for none; see
     above); 0 where the lanes must go one by one instead (``mesh_tree_ray``), 1 when done."""
     ...
-
