@@ -1151,6 +1151,30 @@ def test_shadow_rays_leaving_an_escaping_face_meet_no_triangle_of_its_mesh(name)
 # --- escape horizons (accel.escape_horizons): shadow rays above a face's horizon ---------------
 
 
+def _rays_off_faces(tri, rng, n_rays, side=None):
+    """Rays from random points of random triangles ``tri`` (F, 3, 3), spawned off them as the
+    renderer spawns shadow rays, towards ``side`` (+1: along the winding normal, -1: against it;
+    None: each ray's drawn at random), from grazing to steep and of any length: the faces, the
+    sides, the origins, the directions and t_max."""
+    from warprt.geometry import SPAWN_ABS, SPAWN_REL
+
+    face = rng.integers(0, len(tri), n_rays)
+    p = np.einsum("nk,nkj->nj", rng.dirichlet([1.5, 1.5, 1.5], n_rays), tri[face])
+    ng = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    s = rng.choice([-1.0, 1.0], n_rays) if side is None else np.full(n_rays, float(side))
+    g = ng * s[:, None]
+    mag = np.maximum(np.abs(tri[face]).max(axis=1), np.abs(p))
+    o = p + g * (np.sum(np.abs(g) * mag, axis=1) * SPAWN_REL + SPAWN_ABS)[:, None]
+    d = rng.normal(size=(n_rays, 3))
+    d -= np.sum(d * g, axis=1)[:, None] * g
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d + g * rng.choice([1e-3, 0.1, 0.4, 1.0, 3.0, 30.0], n_rays)[:, None]
+    d *= rng.choice([0.5, 1.0, 2.0], n_rays)[:, None] / np.linalg.norm(d, axis=1, keepdims=True)  # any length
+    t_max = rng.choice([0.05, 0.5, 5.0], n_rays) / np.linalg.norm(d, axis=1)
+    return face, s, o, d, t_max
+
+
 def _horizon_meshes():
     import trimesh
 
@@ -1184,8 +1208,6 @@ def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(n
     mesh (``accel.mesh_tree_occluded``, the renderer's own test), while a fair share of the
     unblocked ones pass (the bounds are not all closed); faces that escape outright
     (``escape_sides``) have every sector at zero; a closed mesh's inner side stays closed."""
-    from warprt.geometry import SPAWN_ABS, SPAWN_REL
-
     v, f = _horizon_meshes()[name]
     mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
                    indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
@@ -1201,22 +1223,8 @@ def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(n
         inner = 1 if name != "icosphere wound inwards" else 0  # (the side not computed)
         assert np.all(sectors[:, inner] == 255) and np.all(h[:, 3] >> inner & 1 == 0)
     tri = v[f].astype(np.float64)
-    rng = np.random.default_rng(29)
-    n_rays = 6000
-    face = rng.integers(0, len(f), n_rays)
-    p = np.einsum("nk,nkj->nj", rng.dirichlet([1.5, 1.5, 1.5], n_rays), tri[face])
-    ng = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
-    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
-    s = rng.choice([-1.0, 1.0], n_rays)
-    g = ng * s[:, None]
-    mag = np.maximum(np.abs(tri[face]).max(axis=1), np.abs(p))
-    o = p + g * (np.sum(np.abs(g) * mag, axis=1) * SPAWN_REL + SPAWN_ABS)[:, None]
-    d = rng.normal(size=(n_rays, 3))
-    d -= np.sum(d * g, axis=1)[:, None] * g
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    d = d + g * rng.choice([1e-3, 0.1, 0.4, 1.0, 3.0, 30.0], n_rays)[:, None]
-    d *= rng.choice([0.5, 1.0, 2.0], n_rays)[:, None] / np.linalg.norm(d, axis=1, keepdims=True)  # any length
-    t_max = rng.choice([0.05, 0.5, 5.0], n_rays) / np.linalg.norm(d, axis=1)
+    face, s, o, d, t_max = _rays_off_faces(tri, np.random.default_rng(29), 6000)
+    n_rays = len(face)
     code = 2 * face + (s < 0)
     hz = wp.array(h.reshape(-1), dtype=wp.uint32, device="cpu")
 
@@ -1349,8 +1357,6 @@ def test_normal_cones_hold_their_subtrees_normals_and_shadow_rays_keep_their_ans
     whose ends lie outside the solid (between random points around it, and from points of the
     faces spawned off their outer side as the renderer spawns shadow rays, grazing to steep, of
     any length) get the same answer from ``mesh_tree_occluded`` with the cones as without them."""
-    from warprt.geometry import SPAWN_ABS, SPAWN_REL
-
     v, f = _horizon_meshes()[name]
     mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
                    indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
@@ -1404,19 +1410,7 @@ def test_normal_cones_hold_their_subtrees_normals_and_shadow_rays_keep_their_ans
     q = rng.uniform(lo, hi, (5000, 3))
     keep = (np.abs(_winding_f64(tri, o)) < 1e-6) & (np.abs(_winding_f64(tri, q)) < 1e-6)
     o1, d1 = o[keep], (q - o)[keep]
-    n_rays = 6000
-    face = rng.integers(0, len(f), n_rays)
-    p = np.einsum("nk,nkj->nj", rng.dirichlet([1.5, 1.5, 1.5], n_rays), tri[face])
-    g = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
-    g = outward * g / np.linalg.norm(g, axis=1, keepdims=True)
-    mag = np.maximum(np.abs(tri[face]).max(axis=1), np.abs(p))
-    o2 = p + g * (np.sum(np.abs(g) * mag, axis=1) * SPAWN_REL + SPAWN_ABS)[:, None]
-    d2 = rng.normal(size=(n_rays, 3))
-    d2 -= np.sum(d2 * g, axis=1)[:, None] * g
-    d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
-    d2 = d2 + g * rng.choice([1e-3, 0.1, 0.4, 1.0, 3.0, 30.0], n_rays)[:, None]
-    d2 *= rng.choice([0.5, 1.0, 2.0], n_rays)[:, None] / np.linalg.norm(d2, axis=1, keepdims=True)
-    t2 = rng.choice([0.05, 0.5, 5.0], n_rays) / np.linalg.norm(d2, axis=1)
+    _, _, o2, d2, t2 = _rays_off_faces(tri, rng, 6000, outward)
     o_all = np.concatenate([o1, o2])
     d_all = np.concatenate([d1, d2])
     t_all = np.concatenate([np.ones(len(o1)), t2])
