@@ -798,6 +798,14 @@ def closed_surface(faces: np.ndarray, edges: tuple | None = None) -> bool:
     return bool(len(faces) > 0 and np.array_equal(key[0::2], key[1::2]) and np.all(key[1:-1:2] != key[2::2]))
 
 
+def winds_outwards(points: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether a closed mesh's triangles wind outwards (counter-clockwise seen from outside): its
+    signed volume, the sum of the tetrahedra from the origin, is positive."""
+    v = np.asarray(points, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    return bool(np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum() > 0.0)
+
+
 def _in_pieces(n: int, smallest: int, device, launch) -> None:
     """``launch(lo, hi)`` over [0, n) in as many pieces as the CPU has cores, none smaller than
     ``smallest`` (a CPU launch runs on one thread); one piece on other devices."""
@@ -940,9 +948,7 @@ def normal_cones(tree: MeshTree, points: np.ndarray, faces: np.ndarray, edges: t
     ascending = (e[:, 0] < e[:, 1])[order]
     if not np.all(ascending[0::2] != ascending[1::2]):
         return None
-    v = np.asarray(points, dtype=np.float64)
-    volume = np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()
-    outward = 1.0 if volume > 0.0 else -1.0
+    outward = 1.0 if winds_outwards(points, f) else -1.0
     corners = tree.tris.numpy().astype(np.float64).reshape(-1, 3, 3)  # in leaf order
     normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     length = np.linalg.norm(normal, axis=1, keepdims=True)
@@ -1400,8 +1406,7 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
         return h
     sides = 3
     if closed_surface(f, edges):  # the outer side only: the front where the faces wind outwards
-        volume = np.einsum("ij,ij->i", v[f[:, 0]], np.cross(v[f[:, 1]], v[f[:, 2]])).sum()
-        sides = 1 if volume > 0.0 else 2
+        sides = 1 if winds_outwards(v, f) else 2
     dev = tree.mesh.device
     out = wp.empty(8 * n, dtype=wp.uint32, device=dev)
     esc = wp.array(known, dtype=wp.uint8, device=dev)
