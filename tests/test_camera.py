@@ -238,3 +238,82 @@ def test_a_packets_directions_equal_camera_ray_lane_by_lane(device):
         got, ref = out.numpy(), want.numpy()
         assert np.isfinite(ref).all() and (np.abs(np.linalg.norm(ref, axis=-1) - 1) < 1e-6).all()
         np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)
+
+
+def test_a_lens_packets_rays_equal_camera_ray_lane_by_lane(device):
+    """``camera.lens_packet`` (a thin-lens camera packet's 8 rays at once: the concentric map's
+    disk points, origins and directions), as clang vectors and lane by lane (its CUDA branch,
+    compiled here on the CPU), equals ``camera_ray`` for each lane bit for bit, origins and
+    directions: random cameras (tiny to wide apertures, focus near and far, tilted up vectors,
+    non-square images) and lens points over the whole square, its centre (the disk's centre, a
+    special case of the map), edges, corners and diagonals (where the map changes branch)."""
+    import warp as wp
+
+    from warprt import camera as cm
+
+    rng = np.random.default_rng(22)
+    n = 512
+    cams = []
+    for i in range(n):
+        eye = rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 2)
+        look = eye + rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 1.5)
+        scene = warprt.Scene(camera=warprt.Camera(eye=tuple(eye), look_at=tuple(look), up=tuple(rng.normal(0, 1, 3)),
+                                                  fov=float(rng.uniform(5, 150)), width=int(rng.integers(1, 400)),
+                                                  height=int(rng.integers(1, 400)),
+                                                  distance=float(10.0 ** rng.uniform(-2, 2)),
+                                                  aperture=float(10.0 ** rng.uniform(-4, 0.5)),
+                                                  focus_distance=float(10.0 ** rng.uniform(-1, 2))),
+                             shapes=(warprt.Sphere(center=(0, 0, 0), radius=1.0),), lights=())
+        cams.append(cm.camera_data(scene))
+    size = np.array([[c.width, c.height] for c in cams], np.float32)
+    pts = rng.random((n, 8, 4)).astype(np.float32)
+    pts[..., :2] *= size[:, None]
+    special = np.float32([[0.5, 0.5], [0, 0], [1, 1], [0, 1], [0.5, 0], [0.25, 0.25], [0.75, 0.25], [0.5, 0.9]])
+    pts[: n // 4, :, 2:] = special[None]
+
+    def kernel_for(packet):
+        @wp.kernel(module="unique", enable_backward=False, module_options=MODULE_OPTIONS)
+        def k(cams: wp.array(dtype=cm.CameraData), p: wp.array3d(dtype=float), out: wp.array3d(dtype=wp.vec3),
+              want: wp.array3d(dtype=wp.vec3)):
+            i = wp.tid()
+            cam = cams[i]
+            f = cm.camera_frame(cam, cam.t_open)
+            fx = cm.PacketF()
+            fy = cm.PacketF()
+            lx = cm.PacketF()
+            ly = cm.PacketF()
+            for j in range(8):
+                fx[j] = p[i, j, 0]
+                fy[j] = p[i, j, 1]
+                lx[j] = p[i, j, 2]
+                ly[j] = p[i, j, 3]
+            ox = cm.PacketF()
+            oy = cm.PacketF()
+            oz = cm.PacketF()
+            dx = cm.PacketF()
+            dy = cm.PacketF()
+            dz = cm.PacketF()
+            packet(cam.right, cam.top, cam.dist, cam.focus, cam.lens_radius, cam.width, cam.height, f.eye, f.u, f.v,
+                   f.w, fx, fy, lx, ly, ox, oy, oz, dx, dy, dz)
+            for j in range(8):
+                out[i, j, 0] = wp.vec3(ox[j], oy[j], oz[j])
+                out[i, j, 1] = wp.vec3(dx[j], dy[j], dz[j])
+                r = cm.camera_ray(cam, fx[j], fy[j], wp.vec2(lx[j], ly[j]), cam.t_open)
+                want[i, j, 0] = r.o
+                want[i, j, 1] = r.d
+        return k
+
+    lanes = wp.func_native(cm._LENS_PACKET.replace("#if defined(__clang__) && !defined(__CUDA_ARCH__)", "#if 0"))(
+        cm.lens_packet.func)
+    for variant, fn in (("vectors", cm.lens_packet), ("lanes", lanes)):
+        out = wp.zeros((n, 8, 2), dtype=wp.vec3, device=device)
+        want = wp.zeros((n, 8, 2), dtype=wp.vec3, device=device)
+        wp.launch(kernel_for(fn), dim=n, device=device,
+                  inputs=[wp.array(cams, dtype=cm.CameraData, device=device), wp.array(pts, dtype=float, device=device),
+                          out, want])
+        got, ref = out.numpy(), want.numpy()
+        assert np.isfinite(ref).all() and (np.abs(np.linalg.norm(ref[:, :, 1], axis=-1) - 1) < 1e-6).all()
+        # the lens points really spread over the lens (origins off the eye)
+        eyes = np.array([[c.eye0[0], c.eye0[1], c.eye0[2]] for c in cams], np.float32)
+        assert (np.linalg.norm(ref[:, :, 0] - eyes[:, None], axis=-1) > 0).mean() > 0.8
+        np.testing.assert_array_equal(got.view(np.uint32), ref.view(np.uint32), err_msg=variant)

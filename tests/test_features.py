@@ -245,9 +245,10 @@ def test_camera_rays_through_meshes_in_mesh_packets_find_the_same_hits_as_one_by
 
 
 def test_a_packets_camera_rays_equal_each_made_alone(device, monkeypatch):
-    """A camera packet's pinhole rays, at rest, are made for its 8 lanes at once
-    (``camera.camera_packet`` in the frame ``camera_frame`` gives once per thread); a thin lens, a
-    moving camera and a scene whose objects move (time sampled) take each lane's ``camera_ray``.
+    """A camera packet's rays, at rest, are made for its 8 lanes at once (``camera.camera_packet``
+    for a pinhole, ``camera.lens_packet`` for a thin lens, in the frame ``camera_frame`` gives once
+    per thread); a moving camera, with or without a lens, and a scene whose objects move (time
+    sampled) take each lane's ``camera_ray``.
     Each renders the same image bit for bit as one-sample passes with one pixel a thread, where
     every camera ray is made alone: full packets, a part packet and packets over several pixels
     (adaptive counts), with Sobol points (the packet's path) and stratified ones."""
@@ -256,7 +257,9 @@ def test_a_packets_camera_rays_equal_each_made_alone(device, monkeypatch):
     cams = dict(pinhole=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14, fov=50.0),
                 lens=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14, aperture=0.1),
                 moving=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14,
-                                     eye_end=(0.6, 1.1, 4)))
+                                     eye_end=(0.6, 1.1, 4)),
+                moving_lens=warprt.Camera(eye=(0.3, 1.1, 4), look_at=(0, 0.4, 0), width=20, height=14, aperture=0.1,
+                                          eye_end=(0.6, 1.1, 4)))
     scenes = {k: _scene(camera=c) for k, c in cams.items()}
     scenes["objects moving"] = _scene(camera=cams["pinhole"], shapes=(
         warprt.Plane(material="floor"),

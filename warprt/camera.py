@@ -15,7 +15,7 @@ import warp as wp
 
 from .accel import PacketF
 from .records import CameraData
-from .sampling import square_to_disk
+from .sampling import QCOS4, QCOS6, QCOS8, QSIN3, QSIN5, QSIN7, square_to_disk
 from .scene.description import Scene
 
 
@@ -74,12 +74,13 @@ def camera_ray(cam: CameraData, fx: float, fy: float, lens: wp.vec2, time: float
     return r
 
 
-# ``camera_ray``'s pinhole directions for a packet's 8 raster points (fx, fy) in one frame: its
-# operations in its order, each rounded once, as clang vectors (lane by lane on CUDA); every
-# lane's origin is the frame's eye. The divisions and the square root are most of a camera ray's
-# cost, and 8 lanes take about what one does.
-_CAMERA_PACKET = r"""
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
+# ``camera_ray`` for a packet's 8 raster points (fx, fy) in one frame: its operations in its
+# order, each rounded once, as clang vectors (lane by lane on CUDA). The divisions and square
+# roots are most of a camera ray's cost, and 8 lanes take about what one does. First the witness
+# points' offsets from the eye, through = us·u + vs·v − D·w (tx, ty, tz; ``_THROUGH`` as vectors,
+# ``_THROUGH_LANE`` for lane l), then the unit direction of (ex, ey, ez) (``_UNIT``: Warp's
+# ``normalize``).
+_THROUGH = r"""
 typedef float v8 __attribute__((ext_vector_type(8)));
 v8 FX, FY;
 __builtin_memcpy(&FX, &fx, 32);
@@ -91,16 +92,10 @@ const v8 vs = top - qs / (float)height;
 const v8 ax = us * u[0], ay = us * u[1], az = us * u[2];
 const v8 bx = vs * v[0], by = vs * v[1], bz = vs * v[2];
 const v8 cx = ax + bx, cy = ay + by, cz = az + bz;
-const float ex = dist * w[0], ey = dist * w[1], ez = dist * w[2];
-const v8 tx = cx - ex, ty = cy - ey, tz = cz - ez;
-const v8 len = __builtin_elementwise_sqrt(tx * tx + ty * ty + tz * tz);
-const v8 zero = 0.0f;
-const v8 rx = len > 0.0f ? tx / len : zero, ry = len > 0.0f ? ty / len : zero, rz = len > 0.0f ? tz / len : zero;
-__builtin_memcpy(&out_dx, &rx, 32);
-__builtin_memcpy(&out_dy, &ry, 32);
-__builtin_memcpy(&out_dz, &rz, 32);
-#else
-for (int l = 0; l < 8; ++l) {
+const float ex_ = dist * w[0], ey_ = dist * w[1], ez_ = dist * w[2];
+const v8 tx = cx - ex_, ty = cy - ey_, tz = cz - ez_;
+"""
+_THROUGH_LANE = r"""
     const float ps = (2.0f * right) * fx[l];
     const float us = -right + ps / (float)width;
     const float qs = (2.0f * top) * fy[l];
@@ -108,15 +103,56 @@ for (int l = 0; l < 8; ++l) {
     const float ax = us * u[0], ay = us * u[1], az = us * u[2];
     const float bx = vs * v[0], by = vs * v[1], bz = vs * v[2];
     const float cx = ax + bx, cy = ay + by, cz = az + bz;
-    const float ex = dist * w[0], ey = dist * w[1], ez = dist * w[2];
-    const float tx = cx - ex, ty = cy - ey, tz = cz - ez;
-    const float len = sqrtf(tx * tx + ty * ty + tz * tz);
-    out_dx[l] = len > 0.0f ? tx / len : 0.0f;
-    out_dy[l] = len > 0.0f ? ty / len : 0.0f;
-    out_dz[l] = len > 0.0f ? tz / len : 0.0f;
+    const float ex_ = dist * w[0], ey_ = dist * w[1], ez_ = dist * w[2];
+    const float tx = cx - ex_, ty = cy - ey_, tz = cz - ez_;
+"""
+_UNIT = r"""
+const v8 len = __builtin_elementwise_sqrt(ex * ex + ey * ey + ez * ez);
+const v8 zero = 0.0f;
+const v8 rx = len > 0.0f ? ex / len : zero, ry = len > 0.0f ? ey / len : zero, rz = len > 0.0f ? ez / len : zero;
+__builtin_memcpy(&out_dx, &rx, 32);
+__builtin_memcpy(&out_dy, &ry, 32);
+__builtin_memcpy(&out_dz, &rz, 32);
+"""
+_UNIT_LANE = r"""
+    const float len = sqrtf(ex * ex + ey * ey + ez * ez);
+    out_dx[l] = len > 0.0f ? ex / len : 0.0f;
+    out_dy[l] = len > 0.0f ? ey / len : 0.0f;
+    out_dz[l] = len > 0.0f ? ez / len : 0.0f;
+"""
+
+# ``sampling.quarter_sin`` and ``quarter_cos`` of x (x2 = x·x): s and c, the same operations
+_QUARTER = f"""
+auto sp_ = x2 * {QSIN7.hex()}f; sp_ = sp_ + {QSIN5.hex()}f; sp_ = sp_ * x2; sp_ = sp_ + {QSIN3.hex()}f;
+sp_ = sp_ * x2; sp_ = sp_ * x;
+const auto s = x + sp_;
+auto cp_ = x2 * {QCOS8.hex()}f; cp_ = cp_ + {QCOS6.hex()}f; cp_ = cp_ * x2; cp_ = cp_ + {QCOS4.hex()}f;
+cp_ = cp_ * x2; cp_ = cp_ - 0.5f; cp_ = cp_ * x2;
+const auto c = 1.0f + cp_;
+"""
+
+
+def _camera_snippet(snippet: str) -> str:
+    for name, text in (("THROUGH", _THROUGH), ("THROUGH_LANE", _THROUGH_LANE), ("UNIT", _UNIT),
+                       ("UNIT_LANE", _UNIT_LANE), ("QUARTER", _QUARTER)):
+        snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
+    return snippet
+
+
+# the pinhole: every lane's origin is the frame's eye, its direction through's
+_CAMERA_PACKET = _camera_snippet(r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+@THROUGH@
+const v8 ex = tx, ey = ty, ez = tz;
+@UNIT@
+#else
+for (int l = 0; l < 8; ++l) {
+@THROUGH_LANE@
+    const float ex = tx, ey = ty, ez = tz;
+@UNIT_LANE@
 }
 #endif
-"""
+""")
 
 
 @wp.func_native(_CAMERA_PACKET)
@@ -125,6 +161,83 @@ def camera_packet(right: float, top: float, dist: float, width: int, height: int
                   out_dz: wp.ref[PacketF]):
     """The unit directions of ``camera_ray``'s pinhole rays through the 8 lanes' raster points
     (fx, fy) in the frame (u, v, w) (see above)."""
+    ...
+
+
+# the thin lens: each lane's lens point (lx, ly) through ``square_to_disk``'s concentric map
+# (its cosine and sine each lane's own call of Warp's), scaled by the lens radius, gives the
+# origin eye + x·u + y·v, and the direction runs from it to eye + through·(focus / D)
+_LENS_PACKET = _camera_snippet(r"""
+const float pi4 = 3.14159265358979323846f / 4.0f;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+@THROUGH@
+v8 LX, LY;
+__builtin_memcpy(&LX, &lx, 32);
+__builtin_memcpy(&LY, &ly, 32);
+const v8 a2 = 2.0f * LX, b2 = 2.0f * LY;
+const v8 a = a2 - 1.0f, b = b2 - 1.0f;
+const v8 qa = b / a, qb = a / b;
+const auto wide = __builtin_elementwise_abs(a) > __builtin_elementwise_abs(b);
+const v8 q = wide ? qa : qb;
+const v8 x = pi4 * q;
+const v8 x2 = x * x;
+@QUARTER@
+const v8 r = wide ? a : b;
+const v8 sx = r * (wide ? c : s), sy = r * (wide ? s : c);
+const v8 none = 0.0f;
+const auto centre = (a == 0.0f) & (b == 0.0f);
+const v8 kx = centre ? none : sx, ky = centre ? none : sy;
+const v8 dkx = kx * lens_radius, dky = ky * lens_radius;
+const float k = focus / dist;
+const v8 fpx = tx * k, fpy = ty * k, fpz = tz * k;
+const v8 gx = eye[0] + fpx, gy = eye[1] + fpy, gz = eye[2] + fpz;
+const v8 mx = dkx * u[0], my = dkx * u[1], mz = dkx * u[2];
+const v8 hx = eye[0] + mx, hy = eye[1] + my, hz = eye[2] + mz;
+const v8 nx = dky * v[0], ny = dky * v[1], nz = dky * v[2];
+const v8 ox = hx + nx, oy = hy + ny, oz = hz + nz;
+__builtin_memcpy(&out_ox, &ox, 32);
+__builtin_memcpy(&out_oy, &oy, 32);
+__builtin_memcpy(&out_oz, &oz, 32);
+const v8 ex = gx - ox, ey = gy - oy, ez = gz - oz;
+@UNIT@
+#else
+for (int l = 0; l < 8; ++l) {
+@THROUGH_LANE@
+    const float a2 = 2.0f * lx[l], b2 = 2.0f * ly[l];
+    const float a = a2 - 1.0f, b = b2 - 1.0f;
+    float dkx = 0.0f, dky = 0.0f;
+    if (!(a == 0.0f && b == 0.0f)) {
+        const bool wide = fabsf(a) > fabsf(b);
+        const float q = wide ? b / a : a / b;
+        const float x = pi4 * q;
+        const float x2 = x * x;
+@QUARTER@
+        const float r = wide ? a : b;
+        const float sx = r * (wide ? c : s), sy = r * (wide ? s : c);
+        dkx = sx * lens_radius; dky = sy * lens_radius;
+    }
+    const float k = focus / dist;
+    const float fpx = tx * k, fpy = ty * k, fpz = tz * k;
+    const float gx = eye[0] + fpx, gy = eye[1] + fpy, gz = eye[2] + fpz;
+    const float mx = dkx * u[0], my = dkx * u[1], mz = dkx * u[2];
+    const float hx = eye[0] + mx, hy = eye[1] + my, hz = eye[2] + mz;
+    const float nx = dky * v[0], ny = dky * v[1], nz = dky * v[2];
+    const float ox = hx + nx, oy = hy + ny, oz = hz + nz;
+    out_ox[l] = ox; out_oy[l] = oy; out_oz[l] = oz;
+    const float ex = gx - ox, ey = gy - oy, ez = gz - oz;
+@UNIT_LANE@
+}
+#endif
+""")
+
+
+@wp.func_native(_LENS_PACKET)
+def lens_packet(right: float, top: float, dist: float, focus: float, lens_radius: float, width: int, height: int,
+                eye: wp.vec3, u: wp.vec3, v: wp.vec3, w: wp.vec3, fx: PacketF, fy: PacketF, lx: PacketF,
+                ly: PacketF, out_ox: wp.ref[PacketF], out_oy: wp.ref[PacketF], out_oz: wp.ref[PacketF],
+                out_dx: wp.ref[PacketF], out_dy: wp.ref[PacketF], out_dz: wp.ref[PacketF]):
+    """``camera_ray``'s thin-lens rays (origins and unit directions) through the 8 lanes' raster
+    points (fx, fy) from their lens samples (lx, ly), in the frame (eye, u, v, w) (see above)."""
     ...
 
 

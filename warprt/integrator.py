@@ -33,7 +33,7 @@ import warp as wp
 
 from . import _warp
 from ._warp import build_once
-from .camera import camera_frame, camera_packet, camera_ray
+from .camera import camera_frame, camera_packet, camera_ray, lens_packet
 from .film import FilmData, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights
@@ -214,11 +214,16 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         p_key = wp.uint32(0)
         one_s = int(0)
         mixed = bool(False)
-        # a pinhole camera at rest: its frame once, a packet's 8 directions at once (camera_packet)
-        pinhole = cam.lens_radius <= 0.0
+        # a camera at rest: its frame once, a packet's 8 rays at once (camera_packet for a pinhole,
+        # lens_packet for a thin lens)
+        still = True
         if wp.static(F.motion):
             if params.moving != 0 and cam.t_close > cam.t_open:
-                pinhole = False
+                still = False
+        pinhole = still and cam.lens_radius <= 0.0
+        lensed = False
+        if wp.static(F.lens):
+            lensed = still and cam.lens_radius > 0.0
         frame = camera_frame(cam, cam.t_open)
         while g_j < n_pix:
             lanes = int(0)
@@ -300,7 +305,10 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                 dxp = PacketF()
                 dyp = PacketF()
                 dzp = PacketF()
-                if sobol and pinhole:
+                oxp = PacketF()
+                oyp = PacketF()
+                ozp = PacketF()
+                if sobol and (pinhole or lensed):
                     fxp = PacketF()
                     fyp = PacketF()
                     for k in range(lanes):
@@ -309,8 +317,13 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                             jk = lane_j[k]
                         fxp[k] = float(px0 + jk) + ufx[k]
                         fyp[k] = float(py) + ufy[k]
-                    camera_packet(cam.right, cam.top, cam.dist, cam.width, cam.height, frame.u, frame.v, frame.w, fxp,
-                                  fyp, dxp, dyp, dzp)
+                    if pinhole:
+                        camera_packet(cam.right, cam.top, cam.dist, cam.width, cam.height, frame.u, frame.v, frame.w,
+                                      fxp, fyp, dxp, dyp, dzp)
+                    else:
+                        lens_packet(cam.right, cam.top, cam.dist, cam.focus, cam.lens_radius, cam.width, cam.height,
+                                    frame.eye, frame.u, frame.v, frame.w, fxp, fyp, ulx, uly, oxp, oyp, ozp, dxp, dyp,
+                                    dzp)
                 for k in range(lanes):
                     jk = p_j
                     sk = one_s + k
@@ -322,6 +335,10 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     cs = CameraSample()
                     if sobol and pinhole:
                         cs.o = frame.eye
+                        cs.d = wp.vec3(dxp[k], dyp[k], dzp[k])
+                        cs.time = cam.t_open
+                    elif sobol and lensed:
+                        cs.o = wp.vec3(oxp[k], oyp[k], ozp[k])
                         cs.d = wp.vec3(dxp[k], dyp[k], dzp[k])
                         cs.time = cam.t_open
                     elif sobol:

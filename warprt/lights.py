@@ -227,7 +227,7 @@ const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lit) != 0;
 const v8 zero = 0.0f, big = 3.4028234663852886e38f, one = 1.0f;
 auto sat = [&](v8 x, v8 y) {
     const v8 p = x * y;
-    return (x > 0.0f) & (y > 0.0f) ? (p <= big ? p : big) : zero;
+    return ((x > 0.0f) & (y > 0.0f)) ? (p <= big ? p : big) : zero;
 };
 v8 D, F0, F1, F2, O0, O1, O2;
 __builtin_memcpy(&D, &dist, 32);
