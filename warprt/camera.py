@@ -133,6 +133,7 @@ const auto c = 1.0f + cp_;
 
 
 def _camera_snippet(snippet: str) -> str:
+    """A camera packet's snippet with its shared pieces (``@THROUGH@`` and the others above) in place."""
     for name, text in (("THROUGH", _THROUGH), ("THROUGH_LANE", _THROUGH_LANE), ("UNIT", _UNIT),
                        ("UNIT_LANE", _UNIT_LANE), ("QUARTER", _QUARTER)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
@@ -165,8 +166,9 @@ def camera_packet(right: float, top: float, dist: float, width: int, height: int
 
 
 # the thin lens: each lane's lens point (lx, ly) through ``square_to_disk``'s concentric map
-# (its cosine and sine each lane's own call of Warp's), scaled by the lens radius, gives the
-# origin eye + x·u + y·v, and the direction runs from it to eye + through·(focus / D)
+# (its sine and cosine ``sampling.quarter_sin`` and ``quarter_cos``'s polynomials, ``_QUARTER``),
+# scaled by the lens radius, gives the origin eye + x·u + y·v, and the direction runs from it to
+# eye + through·(focus / D)
 _LENS_PACKET = _camera_snippet(r"""
 const float pi4 = 3.14159265358979323846f / 4.0f;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)

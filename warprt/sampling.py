@@ -300,10 +300,11 @@ def sobol_packet(keys: PacketU, index: PacketI, dim: wp.uint32, out_x: wp.ref[Pa
 
 
 # sin and cos on [-π/4, π/4] as polynomials (Cephes' sinf and cosf coefficients rounded to
-# float32; within 2 ulp of the float64 values there), for the concentric map: written out
-# operation by operation, so that a thin-lens camera packet (``camera.lens_packet``) computes its
-# 8 lanes' disk points with the same float32 operations as clang vectors, where a call of libm's
-# sinf and cosf per lane would cost more than the rest of the packet's camera rays.
+# float32; within 1.1 ulp of the float64 values there, tests/test_sampling_maps.py), for the
+# concentric map: written out operation by operation, so that a thin-lens camera packet
+# (``camera.lens_packet``) computes its 8 lanes' disk points with the same float32 operations as
+# clang vectors (libm's sinf and cosf, called lane by lane, took 7 ns of a 100-ns camera sample
+# on the thin-lens peer scene: docs/benchmarks.md, levers).
 QSIN3 = -0.16666655242443085
 QSIN5 = 0.008332161232829094
 QSIN7 = -0.00019515295571181923
