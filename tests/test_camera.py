@@ -175,6 +175,29 @@ def test_zero_aperture_ignores_the_lens_samples():
     np.testing.assert_array_equal(d0, d1)
 
 
+def _random_cameras(rng, n: int, eye_exp: float, look_exp: float, lens: bool = False) -> list:
+    """n random cameras' device records: eyes up to 10^eye_exp from the origin, look-at points up
+    to 10^look_exp from the eye, tilted up vectors, 5-150° fields of view, images of 1-399 pixels a
+    side, image planes at 0.01-100; with ``lens``, apertures 1e-4-3.2 and focus distances
+    0.1-100."""
+    from warprt import camera as cm
+
+    cams = []
+    for _ in range(n):
+        eye = rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, eye_exp)
+        look = eye + rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, look_exp)
+        optics = {}
+        kw = dict(eye=tuple(eye), look_at=tuple(look), up=tuple(rng.normal(0, 1, 3)), fov=float(rng.uniform(5, 150)),
+                  width=int(rng.integers(1, 400)), height=int(rng.integers(1, 400)),
+                  distance=float(10.0 ** rng.uniform(-2, 2)))
+        if lens:
+            optics = dict(aperture=float(10.0 ** rng.uniform(-4, 0.5)), focus_distance=float(10.0 ** rng.uniform(-1, 2)))
+        scene = warprt.Scene(camera=warprt.Camera(**kw, **optics), shapes=(warprt.Sphere(center=(0, 0, 0), radius=1.0),),
+                             lights=())
+        cams.append(cm.camera_data(scene))
+    return cams
+
+
 def test_a_packets_directions_equal_camera_ray_lane_by_lane(device):
     """``camera.camera_packet`` (a camera packet's 8 pinhole directions at once, in the frame
     ``camera_frame`` gives), as clang vectors and lane by lane (its CUDA branch, compiled here on
@@ -188,16 +211,7 @@ def test_a_packets_directions_equal_camera_ray_lane_by_lane(device):
 
     rng = np.random.default_rng(21)
     n = 512
-    cams = []
-    for i in range(n):
-        eye = rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 3)
-        look = eye + rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 2)
-        scene = warprt.Scene(camera=warprt.Camera(eye=tuple(eye), look_at=tuple(look), up=tuple(rng.normal(0, 1, 3)),
-                                                  fov=float(rng.uniform(5, 150)), width=int(rng.integers(1, 400)),
-                                                  height=int(rng.integers(1, 400)),
-                                                  distance=float(10.0 ** rng.uniform(-2, 2))),
-                             shapes=(warprt.Sphere(center=(0, 0, 0), radius=1.0),), lights=())
-        cams.append(cm.camera_data(scene))
+    cams = _random_cameras(rng, n, eye_exp=3, look_exp=2)
     size = np.array([[c.width, c.height] for c in cams], np.float32)
     pts = rng.random((n, 8, 2)).astype(np.float32) * size[:, None]
     pts[:, 0] = 0.0
@@ -253,18 +267,7 @@ def test_a_lens_packets_rays_equal_camera_ray_lane_by_lane(device):
 
     rng = np.random.default_rng(22)
     n = 512
-    cams = []
-    for i in range(n):
-        eye = rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 2)
-        look = eye + rng.normal(0, 1, 3) * 10.0 ** rng.uniform(-1, 1.5)
-        scene = warprt.Scene(camera=warprt.Camera(eye=tuple(eye), look_at=tuple(look), up=tuple(rng.normal(0, 1, 3)),
-                                                  fov=float(rng.uniform(5, 150)), width=int(rng.integers(1, 400)),
-                                                  height=int(rng.integers(1, 400)),
-                                                  distance=float(10.0 ** rng.uniform(-2, 2)),
-                                                  aperture=float(10.0 ** rng.uniform(-4, 0.5)),
-                                                  focus_distance=float(10.0 ** rng.uniform(-1, 2))),
-                             shapes=(warprt.Sphere(center=(0, 0, 0), radius=1.0),), lights=())
-        cams.append(cm.camera_data(scene))
+    cams = _random_cameras(rng, n, eye_exp=2, look_exp=1.5, lens=True)
     size = np.array([[c.width, c.height] for c in cams], np.float32)
     pts = rng.random((n, 8, 4)).astype(np.float32)
     pts[..., :2] *= size[:, None]

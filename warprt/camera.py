@@ -131,11 +131,24 @@ cp_ = cp_ * x2; cp_ = cp_ - 0.5f; cp_ = cp_ * x2;
 const auto c = 1.0f + cp_;
 """
 
+# a thin-lens ray from the disk point (dkx, dky) (scaled by the lens radius) and through (tx, ty,
+# tz), k = focus / D: the origin (ox, oy, oz) and the unnormalised direction (ex, ey, ez), the
+# vectors' or one lane's (``auto``)
+_LENS_RAY = r"""
+const auto fpx = tx * k, fpy = ty * k, fpz = tz * k;
+const auto gx = eye[0] + fpx, gy = eye[1] + fpy, gz = eye[2] + fpz;
+const auto mx = dkx * u[0], my = dkx * u[1], mz = dkx * u[2];
+const auto hx = eye[0] + mx, hy = eye[1] + my, hz = eye[2] + mz;
+const auto nx = dky * v[0], ny = dky * v[1], nz = dky * v[2];
+const auto ox = hx + nx, oy = hy + ny, oz = hz + nz;
+const auto ex = gx - ox, ey = gy - oy, ez = gz - oz;
+"""
+
 
 def _camera_snippet(snippet: str) -> str:
     """A camera packet's snippet with its shared pieces (``@THROUGH@`` and the others above) in place."""
     for name, text in (("THROUGH", _THROUGH), ("THROUGH_LANE", _THROUGH_LANE), ("UNIT", _UNIT),
-                       ("UNIT_LANE", _UNIT_LANE), ("QUARTER", _QUARTER)):
+                       ("UNIT_LANE", _UNIT_LANE), ("QUARTER", _QUARTER), ("LENS_RAY", _LENS_RAY)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -170,7 +183,7 @@ def camera_packet(right: float, top: float, dist: float, width: int, height: int
 # scaled by the lens radius, gives the origin eye + x·u + y·v, and the direction runs from it to
 # eye + through·(focus / D)
 _LENS_PACKET = _camera_snippet(r"""
-const float pi4 = 3.14159265358979323846f / 4.0f;
+const float pi4 = 3.14159265358979323846f / 4.0f, k = focus / dist;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
 @THROUGH@
 v8 LX, LY;
@@ -190,17 +203,10 @@ const v8 none = 0.0f;
 const auto centre = (a == 0.0f) & (b == 0.0f);
 const v8 kx = centre ? none : sx, ky = centre ? none : sy;
 const v8 dkx = kx * lens_radius, dky = ky * lens_radius;
-const float k = focus / dist;
-const v8 fpx = tx * k, fpy = ty * k, fpz = tz * k;
-const v8 gx = eye[0] + fpx, gy = eye[1] + fpy, gz = eye[2] + fpz;
-const v8 mx = dkx * u[0], my = dkx * u[1], mz = dkx * u[2];
-const v8 hx = eye[0] + mx, hy = eye[1] + my, hz = eye[2] + mz;
-const v8 nx = dky * v[0], ny = dky * v[1], nz = dky * v[2];
-const v8 ox = hx + nx, oy = hy + ny, oz = hz + nz;
+@LENS_RAY@
 __builtin_memcpy(&out_ox, &ox, 32);
 __builtin_memcpy(&out_oy, &oy, 32);
 __builtin_memcpy(&out_oz, &oz, 32);
-const v8 ex = gx - ox, ey = gy - oy, ez = gz - oz;
 @UNIT@
 #else
 for (int l = 0; l < 8; ++l) {
@@ -218,15 +224,8 @@ for (int l = 0; l < 8; ++l) {
         const float sx = r * (wide ? c : s), sy = r * (wide ? s : c);
         dkx = sx * lens_radius; dky = sy * lens_radius;
     }
-    const float k = focus / dist;
-    const float fpx = tx * k, fpy = ty * k, fpz = tz * k;
-    const float gx = eye[0] + fpx, gy = eye[1] + fpy, gz = eye[2] + fpz;
-    const float mx = dkx * u[0], my = dkx * u[1], mz = dkx * u[2];
-    const float hx = eye[0] + mx, hy = eye[1] + my, hz = eye[2] + mz;
-    const float nx = dky * v[0], ny = dky * v[1], nz = dky * v[2];
-    const float ox = hx + nx, oy = hy + ny, oz = hz + nz;
+@LENS_RAY@
     out_ox[l] = ox; out_oy[l] = oy; out_oz[l] = oz;
-    const float ex = gx - ox, ey = gy - oy, ez = gz - oz;
 @UNIT_LANE@
 }
 #endif
