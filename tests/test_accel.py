@@ -987,6 +987,32 @@ def _with_and_without(renderer, field, spp):
     return first, renderer.render(spp=spp, seed=3, progress=False).image
 
 
+def test_shadow_packets_render_what_each_lane_renders_alone(monkeypatch):
+    """A mesh of ``accel.SHADOW_PACKET_TRIANGLES`` or more triangles has its record's
+    ``shadow_packets`` set, and a camera packet's shadow rays then go through its tree together
+    (``trace.mesh_lanes_occluded``); the images are the same bit for bit as with each lane alone:
+    with the interior balls and normal cones, without either, with one and four light samples."""
+    scene = _balls_scene()
+    small = warprt.Renderer(scene, device="cpu")
+    assert int(small.built.data.insts.numpy()["shadow_packets"][0]) == 0  # (2k triangles: below the size)
+    monkeypatch.setattr(accel, "SHADOW_PACKET_TRIANGLES", 1024)
+    for samples in (1, 4):
+        light = dataclasses.replace(scene.lights[0], samples=samples)
+        r = warprt.Renderer(scene.replace(lights=(light,)), device="cpu")
+        assert int(r.built.data.insts.numpy()["shadow_packets"][0]) == 1
+        assert _n_balls(r) > 0 and _cones(r) != 0
+        packets, alone = _with_and_without(r, "shadow_packets", 8)
+        assert packets.tobytes() == alone.tobytes()
+        assert float(alone[..., 0].std()) > 0.01  # (a lit, shadowed image)
+        rows = r.built.data.insts.numpy()
+        rows["shadow_packets"] = 1
+        rows["n_balls"] = 0
+        rows["cones"] = 0
+        r.built.data.insts.assign(rows)
+        packets_bare, alone_bare = _with_and_without(r, "shadow_packets", 8)
+        assert packets_bare.tobytes() == alone_bare.tobytes() == alone.tobytes()
+
+
 def test_shadow_rays_use_interior_balls_only_where_no_shading_point_is_inside_the_solid():
     """The renderer gives a mesh instance its balls and normal cones while the camera (eye and
     lens, at both ends of its motion) and every light stay outside the instance's box, and its
@@ -1404,16 +1430,7 @@ def test_normal_cones_hold_their_subtrees_normals_and_shadow_rays_keep_their_ans
             assert np.all(angle <= np.arcsin(s / np.linalg.norm(a)) - 1e-6), (node, c)
     assert n_open / n_inner > _CONE_SHARE[name], n_open / n_inner
 
-    rng = np.random.default_rng(31)
-    lo, hi = v.min(axis=0) - 0.5, v.max(axis=0) + 0.5
-    o = rng.uniform(lo, hi, (5000, 3))
-    q = rng.uniform(lo, hi, (5000, 3))
-    keep = (np.abs(_winding_f64(tri, o)) < 1e-6) & (np.abs(_winding_f64(tri, q)) < 1e-6)
-    o1, d1 = o[keep], (q - o)[keep]
-    _, _, o2, d2, t2 = _rays_off_faces(tri, rng, 6000, outward)
-    o_all = np.concatenate([o1, o2])
-    d_all = np.concatenate([d1, d2])
-    t_all = np.concatenate([np.ones(len(o1)), t2])
+    o_all, d_all, t_all, n1 = _outside_segments(v, tri, outward)
     cn = wp.array(cones.reshape(-1), dtype=wp.float32, device="cpu")
 
     @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
@@ -1434,9 +1451,100 @@ def test_normal_cones_hold_their_subtrees_normals_and_shadow_rays_keep_their_ans
     assert (without >= 0).all() and (with_cones >= 0).all()
     differ = np.flatnonzero(with_cones != without)
     assert differ.size == 0, f"{differ.size} of {len(o_all)} segments answered otherwise with the cones"
-    assert 100 < without[:len(o1)].sum() < len(o1) - 100
+    assert 100 < without[:n1].sum() < n1 - 100
     # (from the faces: 485, 1535, 710 and 31 blocked of 6000; none from the convex icosphere)
-    assert without[len(o1):].sum() > (20 if name != "icosphere wound inwards" else -1)
+    assert without[n1:].sum() > (20 if name != "icosphere wound inwards" else -1)
+
+
+def _outside_segments(v, tri, outward):
+    """Shadow segments whose ends lie outside a closed mesh's solid: between random points around
+    it (float64 winding numbers 0 at both ends), then from points of the faces spawned off their
+    outer side, grazing to steep, of any length (``_rays_off_faces``): origins, directions,
+    lengths (in units of the direction) and how many of the first kind."""
+    rng = np.random.default_rng(31)
+    lo, hi = v.min(axis=0) - 0.5, v.max(axis=0) + 0.5
+    o = rng.uniform(lo, hi, (5000, 3))
+    q = rng.uniform(lo, hi, (5000, 3))
+    keep = (np.abs(_winding_f64(tri, o)) < 1e-6) & (np.abs(_winding_f64(tri, q)) < 1e-6)
+    o1, d1 = o[keep], (q - o)[keep]
+    _, _, o2, d2, t2 = _rays_off_faces(tri, rng, 6000, outward)
+    return (np.concatenate([o1, o2]), np.concatenate([d1, d2]), np.concatenate([np.ones(len(o1)), t2]), len(o1))
+
+
+@pytest.mark.parametrize("name", list(_CONE_SHARE))
+def test_shadow_packets_give_each_lane_its_own_answer(name):
+    """``accel.mesh_tree_occluded_packet`` (up to 8 shadow rays through the tree copy together, a
+    lane retired at its first occluder) answers every lane as ``mesh_tree_occluded`` answers it
+    alone, with the normal cones and without, for full packets and random lane masks (lanes
+    outside the mask answer 0), on the cone test's segments: between outside points, and from
+    spawned face points in packets of neighbouring faces' rays (as a camera packet's shading
+    points send theirs) and of random ones."""
+    v, f = _horizon_meshes()[name]
+    mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
+    tree = accel.MeshTree(mesh, len(f))
+    cones = accel.normal_cones(tree, v, f)
+    tri = v[f].astype(np.float64)
+    outward = 1.0 if name != "icosphere wound inwards" else -1.0
+    o_all, d_all, t_all, n1 = _outside_segments(v, tri, outward)
+    rng = np.random.default_rng(32)
+    shuffled = np.concatenate([np.arange(len(o_all)), rng.permutation(len(o_all))])  # in order, then mixed
+    m = len(shuffled) // 8 * 8
+    idx = shuffled[:m]
+    masks = rng.integers(1, 256, m // 8)
+    masks[::3] = 255
+    cn = wp.array(cones.reshape(-1), dtype=wp.float32, device="cpu")
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+    def k_lanes(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, cones: wp.uint64,
+                o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), t_max: wp.array(dtype=float),
+                masks: wp.array(dtype=int), out: wp.array(dtype=wp.vec2i)):
+        i = wp.tid()
+        ox = accel.PacketF()
+        oy = accel.PacketF()
+        oz = accel.PacketF()
+        dx = accel.PacketF()
+        dy = accel.PacketF()
+        dz = accel.PacketF()
+        tm = accel.PacketF()
+        for k in range(8):
+            ox[k] = o[8 * i + k][0]
+            oy[k] = o[8 * i + k][1]
+            oz[k] = o[8 * i + k][2]
+            dx[k] = d[8 * i + k][0]
+            dy[k] = d[8 * i + k][1]
+            dz[k] = d[8 * i + k][2]
+            tm[k] = t_max[8 * i + k]
+        a = accel.mesh_tree_occluded_packet(nodes, kids, tris, root, cones, ox, oy, oz, dx, dy, dz, tm, masks[i])
+        b = accel.mesh_tree_occluded_packet(nodes, kids, tris, root, wp.uint64(0), ox, oy, oz, dx, dy, dz, tm, masks[i])
+        for k in range(8):
+            out[8 * i + k] = wp.vec2i((a >> k) & 1, (b >> k) & 1)
+            if a < 0 or b < 0:
+                out[8 * i + k] = wp.vec2i(-1, -1)
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+    def k_alone(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int,
+                o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), t_max: wp.array(dtype=float),
+                out: wp.array(dtype=int)):
+        i = wp.tid()
+        out[i] = accel.mesh_tree_occluded(nodes, kids, tris, root, wp.uint64(0), o[i], d[i], t_max[i])
+
+    arrays = [wp.array(o_all[idx].astype(np.float32), dtype=wp.vec3, device="cpu"),
+              wp.array(d_all[idx].astype(np.float32), dtype=wp.vec3, device="cpu"),
+              wp.array(t_all[idx].astype(np.float32), dtype=float, device="cpu")]
+    args = [tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root]
+    lanes = wp.zeros(m, dtype=wp.vec2i, device="cpu")
+    alone = wp.zeros(m, dtype=int, device="cpu")
+    wp.launch(k_lanes, dim=m // 8, device="cpu",
+              inputs=args + [cn.ptr] + arrays + [wp.array(masks.astype(np.int32), dtype=int, device="cpu"), lanes])
+    wp.launch(k_alone, dim=m, device="cpu", inputs=args + arrays + [alone])
+    with_cones, without = lanes.numpy().T
+    want = alone.numpy()
+    assert (want >= 0).all() and (with_cones >= 0).all()
+    in_mask = ((masks[:, None] >> np.arange(8)) & 1).reshape(-1).astype(bool)
+    np.testing.assert_array_equal(with_cones, np.where(in_mask, want, 0))
+    np.testing.assert_array_equal(without, np.where(in_mask, want, 0))
+    assert 0.02 < want[in_mask].mean() < 0.98  # (lit and blocked lanes both)
 
 
 def test_normal_cones_need_a_closed_consistently_wound_mesh():

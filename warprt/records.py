@@ -180,6 +180,7 @@ class InstRec:
     n_balls: int  # 0: none (CUDA, a mesh that does not qualify, or build.DeviceScene's rules)
     escape: wp.uint64  # the asset's escape horizons (accel.escape_horizons; 0: none)
     cones: wp.uint64  # the asset's normal cones (accel.normal_cones) while shadow rays may use them
+    shadow_packets: int  # 1: a camera packet's shadow rays go through the tree together (accel.SHADOW_PACKET_TRIANGLES)
 
 
 @wp.struct

@@ -21,8 +21,9 @@ from types import SimpleNamespace
 import warp as wp
 
 from .accel import (
-    PACKET, PACKET_MISS, PacketF, PacketI, StackDist, StackRefs, horizon_escapes, lane, lane_i, mesh_balls_hit,
-    mesh_tree_occluded, mesh_tree_packet, mesh_tree_ray, packet_node, safe_inverse, slab,
+    PACKET, PACKET_MISS, SHADOW_PACKET_MIN, PacketF, PacketI, StackDist, StackRefs, horizon_escapes, lane, lane_i,
+    mesh_balls_hit, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet, mesh_tree_ray, packet_node,
+    safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
@@ -351,14 +352,19 @@ def make_trace(F: Features) -> SimpleNamespace:
     @wp.func
     def instance_pose(scene: SceneData, i: int, time: float) -> Pose:
         """Instance i's pose at ``time`` (poses given at times 0 and 1; rotations by slerp)."""
+        return inst_pose(scene.insts[i], time)
+
+    @wp.func(inline=True)
+    def inst_pose(inst: InstRec, time: float) -> Pose:
+        """``instance_pose`` from the instance's record."""
         pose = Pose()
-        pose.pos = scene.insts[i].pos0
-        pose.rot = scene.insts[i].rot0
-        pose.scl = scene.insts[i].scl0
+        pose.pos = inst.pos0
+        pose.rot = inst.rot0
+        pose.scl = inst.scl0
         if wp.static(F.motion):
-            pose.pos = pose.pos + (scene.insts[i].pos1 - pose.pos) * time
-            pose.rot = wp.quat_slerp(pose.rot, scene.insts[i].rot1, time)
-            pose.scl = pose.scl + (scene.insts[i].scl1 - pose.scl) * time
+            pose.pos = pose.pos + (inst.pos1 - pose.pos) * time
+            pose.rot = wp.quat_slerp(pose.rot, inst.rot1, time)
+            pose.scl = pose.scl + (inst.scl1 - pose.scl) * time
         pose.plain = plain_pose(pose)
         return pose
 
@@ -1183,6 +1189,54 @@ def make_trace(F: Features) -> SimpleNamespace:
         pose = instance_pose(scene, i, time)
         return opaque_occluded(scene, i, to_object(pose, o), dir_to_object(pose, d), t_max)
 
+    @wp.func(inline=False)
+    def mesh_lanes_occluded(inst: InstRec, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
+                            dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF) -> int:
+        """The lanes (of the bit mask ``lanes``, all below n, each in the instance's box) whose shadow
+        ray an opaque mesh instance blocks, their tree traversals together
+        (``accel.mesh_tree_occluded_packet``), each lane's interior balls first: the answers
+        ``instance_occluded`` gives each alone. -1 where the lanes are too few to be worth it
+        (SHADOW_PACKET_MIN) or the packet cannot answer: the caller asks each lane alone. Out of
+        line: kernels whose meshes are small never call it, and do not carry its code inline."""
+        count = int(0)
+        for k in range(n):
+            count += (lanes >> k) & 1
+        if count < SHADOW_PACKET_MIN:
+            return -1
+        pox = PacketF()
+        poy = PacketF()
+        poz = PacketF()
+        pdx = PacketF()
+        pdy = PacketF()
+        pdz = PacketF()
+        blocked = int(0)
+        rest = int(0)
+        for k in range(n):
+            if (lanes >> k) & 1 != 0:
+                pose = inst_pose(inst, time[k])
+                o_obj = to_object(pose, wp.vec3(ox[k], oy[k], oz[k]))
+                d_obj = dir_to_object(pose, wp.vec3(dx[k], dy[k], dz[k]))
+                ball = int(0)
+                if inst.n_balls > 0:
+                    ball = mesh_balls_hit(inst.balls, inst.n_balls, o_obj, d_obj, t_max[k])
+                if ball != 0:
+                    blocked = blocked | (1 << k)
+                else:
+                    rest = rest | (1 << k)
+                    pox[k] = o_obj[0]
+                    poy[k] = o_obj[1]
+                    poz[k] = o_obj[2]
+                    pdx[k] = d_obj[0]
+                    pdy[k] = d_obj[1]
+                    pdz[k] = d_obj[2]
+        if rest == 0:
+            return blocked
+        r = mesh_tree_occluded_packet(inst.tree_nodes, inst.tree_kids, inst.tree_tris, inst.tree_root, inst.cones, pox,
+                                      poy, poz, pdx, pdy, pdz, t_max, rest)
+        if r < 0:
+            return -1
+        return blocked | r
+
     @wp.func
     def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
                         dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, skip: PacketI,
@@ -1317,11 +1371,20 @@ def make_trace(F: Features) -> SimpleNamespace:
                                          t_max)
                 if inside == 0:
                     continue
-                for k in range(n):
-                    if (inside >> k) & 1 != 0:
-                        if instance_occluded(scene, i, wp.vec3(ox[k], oy[k], oz[k]), wp.vec3(dx[k], dy[k], dz[k]),
-                                             t_max[k], time[k]):
-                            blocked = blocked | (1 << k)
+                # a large mesh's lanes through its tree together (mesh_lanes_occluded), else, or
+                # where that cannot answer, one by one
+                done = False
+                if scene.insts[i].shadow_packets != 0:
+                    r = mesh_lanes_occluded(scene.insts[i], n, inside, ox, oy, oz, dx, dy, dz, t_max, time)
+                    if r >= 0:
+                        blocked = blocked | r
+                        done = True
+                if not done:
+                    for k in range(n):
+                        if (inside >> k) & 1 != 0:
+                            if instance_occluded(scene, i, wp.vec3(ox[k], oy[k], oz[k]), wp.vec3(dx[k], dy[k], dz[k]),
+                                                 t_max[k], time[k]):
+                                blocked = blocked | (1 << k)
                 left = lanes & ~blocked
                 if left == 0:
                     return blocked
