@@ -581,11 +581,53 @@ _NODE_BOXES = r"""
 """
 
 
+# a packet's lane l: its ray's shear (``_SHEAR``'s, kept per lane in KX..OKZ) from the packet's
+# vectors Ox..Dz; in ``tri_test``, lane l's shear for ``_WOOP``; and the 8 lanes' slab test of
+# child box b (6 floats) from their 1/d (Ix, Iy, Iz): entry tn and exit tf per lane
+_LANE_SHEAR = r"""
+        const float dxl = Dx[l], dyl = Dy[l], dzl = Dz[l];
+        int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
+        int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+        const float dk[3] = {dxl, dyl, dzl};
+        if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+        KX[l] = kx; KY[l] = ky; KZ[l] = kz;
+        SX[l] = dk[kx] / dk[kz]; SY[l] = dk[ky] / dk[kz]; SZ[l] = 1.0f / dk[kz];
+        const float okk[3] = {Ox[l], Oy[l], Oz[l]};
+        OKX[l] = okk[kx]; OKY[l] = okk[ky]; OKZ[l] = okk[kz];
+"""
+# the packet's rays as vectors from its lanes (ox..dz, t_max: Ox..Dz, Bv) and their 1/d (Ix, Iy, Iz)
+_LANE_RAYS = r"""
+    v8 Ox, Oy, Oz, Dx, Dy, Dz, Bv;
+    __builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+    __builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
+    __builtin_memcpy(&Bv, &t_max, 32);
+    const v8 Ix = 1.0f / (Dx == 0.0f ? (v8)(1e-20f) : Dx), Iy = 1.0f / (Dy == 0.0f ? (v8)(1e-20f) : Dy),
+             Iz = 1.0f / (Dz == 0.0f ? (v8)(1e-20f) : Dz);
+"""
+_LANE_TRI = r"""
+        const int kx = KX[l], ky = KY[l], kz = KZ[l];
+        const float Sx = SX[l], Sy = SY[l], Sz = SZ[l], okx = OKX[l], oky = OKY[l], okz = OKZ[l];
+"""
+_LANE_SLABS = r"""
+            const float* b = nd + 6 * c;
+            const v8 ax = (b[0] - Ox) * Ix, ay = (b[1] - Oy) * Iy, az = (b[2] - Oz) * Iz;
+            const v8 bx = (b[3] - Ox) * Ix, by = (b[4] - Oy) * Iy, bz = (b[5] - Oz) * Iz;
+            const v8 lx = ax < bx ? ax : bx, ly = ay < by ? ay : by, lz = az < bz ? az : bz;
+            const v8 gx = ax > bx ? ax : bx, gy = ay > by ? ay : by, gz = az > bz ? az : bz;
+            const v8 l0 = lx > ly ? lx : ly, lz0 = lz > 0.0f ? lz : (v8)(0.0f);
+            const v8 tn = l0 > lz0 ? l0 : lz0;
+            const v8 g0 = gx < gy ? gx : gy;
+            const v8 tf = g0 < gz ? g0 : gz;
+"""
+
+
 def _splice(snippet: str) -> str:
     """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
-    ``_PREFETCH``, ``_LEAST8``) in place."""
+    ``_PREFETCH``, ``_LEAST8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``, ``_LANE_SLABS``) in
+    place."""
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
-                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8)):
+                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("LANE_SHEAR", _LANE_SHEAR),
+                       ("LANE_TRI", _LANE_TRI), ("LANE_SLABS", _LANE_SLABS), ("LANE_RAYS", _LANE_RAYS)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -751,39 +793,24 @@ SHADOW_PACKET_MIN = 4  # the fewest lanes in a mesh's box worth a packet
 _TREE_OCCLUDED_PACKET = _splice(r"""
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
 if (nodes != 0) {
-
 typedef float v8 __attribute__((ext_vector_type(8)));
 typedef int i8 __attribute__((ext_vector_type(8)));
 @LEAST8@
 const float* N = (const float*)nodes; const int* C = (const int*)kids; const float* TR = (const float*)tris;
 const float* CN = (const float*)cones;
-v8 Ox, Oy, Oz, Dx, Dy, Dz, Bv;
-__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
-__builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
-__builtin_memcpy(&Bv, &t_max, 32);
-const v8 Ix = 1.0f / (Dx == 0.0f ? (v8)(1e-20f) : Dx), Iy = 1.0f / (Dy == 0.0f ? (v8)(1e-20f) : Dy),
-         Iz = 1.0f / (Dz == 0.0f ? (v8)(1e-20f) : Dz);
+@LANE_RAYS@
 const v8 Ln = 1.0f / __builtin_elementwise_sqrt(Dx * Dx + Dy * Dy + Dz * Dz);
 const v8 Ux = Dx * Ln, Uy = Dy * Ln, Uz = Dz * Ln;
 int KX[8], KY[8], KZ[8];
 float SX[8], SY[8], SZ[8], OKX[8], OKY[8], OKZ[8], TM[8];
 for (int l = 0; l < 8; ++l) {
-    const float dxl = Dx[l], dyl = Dy[l], dzl = Dz[l];
-    int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
-    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-    const float dk[3] = {dxl, dyl, dzl};
-    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
-    KX[l] = kx; KY[l] = ky; KZ[l] = kz;
-    SX[l] = dk[kx] / dk[kz]; SY[l] = dk[ky] / dk[kz]; SZ[l] = 1.0f / dk[kz];
-    const float okk[3] = {Ox[l], Oy[l], Oz[l]};
-    OKX[l] = okk[kx]; OKY[l] = okk[ky]; OKZ[l] = okk[kz];
+@LANE_SHEAR@
     TM[l] = ((lanes >> l) & 1) ? Bv[l] : -1.0f;
     if (TM[l] < 0.0f) Bv[l] = -1.0f;
 }
 unsigned live = (unsigned)lanes, blocked = 0;
 auto tri_test = [&](int k, int l) {
-    const int kx = KX[l], ky = KY[l], kz = KZ[l];
-    const float Sx = SX[l], Sy = SY[l], Sz = SZ[l], okx = OKX[l], oky = OKY[l], okz = OKZ[l];
+@LANE_TRI@
 @WOOP@
     if (tt > 0.0f && tt < TM[l]) {
         const wp::vec3 p(t[0], t[1], t[2]), q(t[3], t[4], t[5]), r(t[6], t[7], t[8]);
@@ -802,15 +829,7 @@ while (true) {
     float e[2];
     unsigned m[2];
     for (int c = 0; c < 2; ++c) {
-        const float* b = nd + 6 * c;
-        const v8 ax = (b[0] - Ox) * Ix, ay = (b[1] - Oy) * Iy, az = (b[2] - Oz) * Iz;
-        const v8 bx = (b[3] - Ox) * Ix, by = (b[4] - Oy) * Iy, bz = (b[5] - Oz) * Iz;
-        const v8 lx = ax < bx ? ax : bx, ly = ay < by ? ay : by, lz = az < bz ? az : bz;
-        const v8 gx = ax > bx ? ax : bx, gy = ay > by ? ay : by, gz = az > bz ? az : bz;
-        const v8 l0 = lx > ly ? lx : ly, lz0 = lz > 0.0f ? lz : (v8)(0.0f);
-        const v8 tn = l0 > lz0 ? l0 : lz0;
-        const v8 g0 = gx < gy ? gx : gy;
-        const v8 tf = g0 < gz ? g0 : gz;
+@LANE_SLABS@
         i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
         if (CN != nullptr) {
             const float* cc = CN + 8 * node + 4 * c;
@@ -1622,29 +1641,15 @@ if (nodes != 0) {
     const float* N = (const float*)nodes;
     const int* C = (const int*)kids;
     const float* TR = (const float*)tris;
-    v8 Ox, Oy, Oz, Dx, Dy, Dz, Bv;
-    __builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
-    __builtin_memcpy(&Dx, &dx, 32); __builtin_memcpy(&Dy, &dy, 32); __builtin_memcpy(&Dz, &dz, 32);
-    __builtin_memcpy(&Bv, &t_max, 32);
-    const v8 Ix = 1.0f / (Dx == 0.0f ? (v8)(1e-20f) : Dx), Iy = 1.0f / (Dy == 0.0f ? (v8)(1e-20f) : Dy),
-             Iz = 1.0f / (Dz == 0.0f ? (v8)(1e-20f) : Dz);
+@LANE_RAYS@
     int KX[8], KY[8], KZ[8], bh[8];
     float SX[8], SY[8], SZ[8], OKX[8], OKY[8], OKZ[8], bt[8], bu[8], bv[8];
     for (int l = 0; l < 8; ++l) {
-        const float dxl = Dx[l], dyl = Dy[l], dzl = Dz[l];
-        int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
-        int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-        const float dk[3] = {dxl, dyl, dzl};
-        if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
-        KX[l] = kx; KY[l] = ky; KZ[l] = kz;
-        SX[l] = dk[kx] / dk[kz]; SY[l] = dk[ky] / dk[kz]; SZ[l] = 1.0f / dk[kz];
-        const float okk[3] = {Ox[l], Oy[l], Oz[l]};
-        OKX[l] = okk[kx]; OKY[l] = okk[ky]; OKZ[l] = okk[kz];
+@LANE_SHEAR@
         bt[l] = Bv[l]; bu[l] = 0.0f; bv[l] = 0.0f; bh[l] = -1;
     }
     auto tri_test = [&](int k, int l) {
-        const int kx = KX[l], ky = KY[l], kz = KZ[l];
-        const float Sx = SX[l], Sy = SY[l], Sz = SZ[l], okx = OKX[l], oky = OKY[l], okz = OKZ[l];
+@LANE_TRI@
 @WOOP@
         if (tt >= 0.0f && (tt < bt[l] || (tt == bt[l] && k < bh[l]))) { bt[l] = tt; bu[l] = U * rcp; bv[l] = V * rcp; bh[l] = k; }
     };
@@ -1662,15 +1667,7 @@ if (nodes != 0) {
         float e[2];
         unsigned m[2];
         for (int c = 0; c < 2; ++c) {
-            const float* b = nd + 6 * c;
-            const v8 ax = (b[0] - Ox) * Ix, ay = (b[1] - Oy) * Iy, az = (b[2] - Oz) * Iz;
-            const v8 bx = (b[3] - Ox) * Ix, by = (b[4] - Oy) * Iy, bz = (b[5] - Oz) * Iz;
-            const v8 lx = ax < bx ? ax : bx, ly = ay < by ? ay : by, lz = az < bz ? az : bz;
-            const v8 gx = ax > bx ? ax : bx, gy = ay > by ? ay : by, gz = az > bz ? az : bz;
-            const v8 l0 = lx > ly ? lx : ly, lz0 = lz > 0.0f ? lz : (v8)(0.0f);
-            const v8 tn = l0 > lz0 ? l0 : lz0;
-            const v8 g0 = gx < gy ? gx : gy;
-            const v8 tf = g0 < gz ? g0 : gz;
+@LANE_SLABS@
             const i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
             const v8 en = h ? tn : (v8)(3.0e38f);
             e[c] = least8(en);  // (entries are >= +0, never NaN)
