@@ -287,9 +287,10 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     clang vectors, ``shapes.rect_draw_packet``). Every lane's sample must be the one it gets
     alone, bit for bit: rectangles near enough to be drawn by solid angle (which the scalar draw
     takes) and farther ones, a sheared one, lights below some points' horizon and behind others,
-    a sphere and a disk light, one and three samples per light, specular materials, both
+    a sphere and a disk light, one to four samples per light, specular materials, both
     light-sampling modes, full and part packets, packets over several pixels (adaptive counts),
-    and with Sobol points drawn for the 8 lanes at once (``sampling.sobol_packet``)."""
+    and with Sobol points drawn for the 8 lanes at once (``sampling.sobol_packet``, and
+    ``sobol_split_packet`` for the light with four samples, drawn in quadrant order)."""
     from warprt.trace import PACKET
 
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),
@@ -305,12 +306,15 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
               warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="floor"))
     lights = (
         # near the floor: drawn by solid angle below it, by the cosine warp farther off
-        warprt.RectLight(corner=(-2.2, 0.45, -1.0), edge1=(1.2, 0.0, 0.0), edge2=(0.0, 0.0, 0.8), radiance=(2.0, 1.8, 1.5)),
+        # four samples: with Sobol drawn in quadrant order (sampling.sobol_split_packet)
+        warprt.RectLight(corner=(-2.2, 0.45, -1.0), edge1=(1.2, 0.0, 0.0), edge2=(0.0, 0.0, 0.8), radiance=(2.0, 1.8, 1.5),
+                         samples=4),
         # far, tilted, and sheared (never by solid angle), three samples
         warprt.RectLight(corner=(2.0, 2.5, -1.0), edge1=(0.0, 0.6, 0.6), edge2=(0.4, -0.6, 0.3), radiance=(1.5, 1.5, 2.0),
                          samples=3),
         warprt.SphereLight(center=(-1.5, 1.5, 1.0), radius=0.2, radiance=(3.0, 3.0, 3.0)),
-        warprt.DiskLight(center=(0.0, 2.0, 1.5), normal=(0.0, -1.0, -0.3), radius=0.3, radiance=(2.0, 2.0, 2.0)),
+        warprt.DiskLight(center=(0.0, 2.0, 1.5), normal=(0.0, -1.0, -0.3), radius=0.3, radiance=(2.0, 2.0, 2.0),
+                         samples=2),
         warprt.PointLight(position=(1.0, 2.0, 2.0), intensity=0.5),
     )
     materials = {"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40),

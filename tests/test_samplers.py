@@ -157,3 +157,93 @@ def test_sobol_points_drawn_for_a_packet_are_each_lanes_own():
     a, b = packed.numpy(), alone.numpy()
     assert a.tobytes() == b.tobytes()
     assert (a >= 0).all() and (a < 1).all() and len(np.unique(a[:, 0])) > n // 2
+
+
+def _light_draws(sampler_id, keys, samples, ns, ks, dims):
+    """``light_sample_2d`` and ``sample_2d_keyed`` at ``sample * ns + k`` for each entry, and
+    ``sobol_split_packet`` for the entries in groups of 8 (one ns, k and dimension a group)."""
+    import warp as wp
+
+    from warprt.accel import PacketF, PacketI, PacketU
+    from warprt.sampling import light_sample_2d, sample_2d_keyed, sobol_split_packet
+
+    @wp.kernel(enable_backward=False)
+    def draws(sampler: int, keys: wp.array(dtype=wp.uint32), samples: wp.array(dtype=wp.int32),
+              ns: wp.array(dtype=wp.int32), ks: wp.array(dtype=wp.int32), dims: wp.array(dtype=wp.uint32),
+              light: wp.array(dtype=wp.vec2), plain: wp.array(dtype=wp.vec2), packed: wp.array(dtype=wp.vec2)):
+        g = wp.tid()
+        k8 = PacketU()
+        s8 = PacketI()
+        for lane in range(8):
+            i = g * 8 + lane
+            k8[lane] = keys[i]
+            s8[lane] = samples[i]
+            light[i] = light_sample_2d(sampler, keys[i], samples[i], ns[i], ks[i], 16, dims[i])
+            plain[i] = sample_2d_keyed(sampler, keys[i], samples[i] * ns[i] + ks[i], 16 * ns[i], dims[i])
+        x = PacketF()
+        y = PacketF()
+        if ns[g * 8] >= 2 and (ns[g * 8] & (ns[g * 8] - 1)) == 0:
+            sobol_split_packet(k8, s8, ns[g * 8], ks[g * 8], dims[g * 8], x, y)
+        for lane in range(8):
+            packed[g * 8 + lane] = wp.vec2(x[lane], y[lane])
+
+    n = len(keys)
+    out = [wp.zeros(n, dtype=wp.vec2, device="cpu") for _ in range(3)]
+    wp.launch(draws, dim=n // 8, device="cpu",
+              inputs=[sampler_id, wp.array(keys, dtype=wp.uint32, device="cpu"),
+                      wp.array(samples, dtype=wp.int32, device="cpu"), wp.array(ns, dtype=wp.int32, device="cpu"),
+                      wp.array(ks, dtype=wp.int32, device="cpu"), wp.array(dims, dtype=wp.uint32, device="cpu"), *out])
+    return [o.numpy() for o in out]
+
+
+@pytest.mark.parametrize("ns", [2, 4, 8, 16])
+def test_split_light_samples_are_the_same_points_in_quadrant_order(ns):
+    """With ``sobol`` and ns a power of two, a camera sample's ns light samples
+    (``sampling.light_sample_2d``) are the points ``sample_2d_keyed`` draws at indices
+    sample * ns + [0, ns), bit for bit, in another order: the k-th in the light square's quadrant
+    k % 4 (for ns = 2, the k-th in half k of x); the 8 lanes' draws of a packet
+    (``sobol_split_packet``) are each lane's own, bit for bit. Random pixel and dimension keys,
+    camera samples up to 2^27 / ns."""
+    from warprt.sampling import SAMPLER_SOBOL
+
+    rng = np.random.default_rng(ns)
+    cams = 1024  # camera samples, each with its ns draws
+    keys = np.repeat(rng.integers(0, 2 ** 32, cams, dtype=np.uint64).astype(np.uint32), ns)
+    dims = np.repeat(rng.integers(0, 2 ** 32, cams, dtype=np.uint64).astype(np.uint32), ns)
+    samples = np.repeat(np.concatenate([np.arange(cams // 2), rng.integers(0, 2 ** 27 // ns, cams // 2)]), ns)
+    ks = np.tile(np.arange(ns), cams)
+    light, plain, _ = _light_draws(SAMPLER_SOBOL, keys, samples.astype(np.int32), np.full(len(ks), ns, np.int32),
+                                   ks.astype(np.int32), dims)
+    light, plain = light.reshape(cams, ns, 2), plain.reshape(cams, ns, 2)
+    for a, b in zip(light, plain):
+        assert sorted(map(tuple, a)) == sorted(map(tuple, b))
+    assert np.mean(light == plain) < 0.75  # another order, not the same one
+    k = np.arange(ns)
+    np.testing.assert_array_equal(light[..., 0] >= 0.5, np.broadcast_to(k & 1 == 1, (cams, ns)))
+    if ns >= 4:
+        np.testing.assert_array_equal(light[..., 1] >= 0.5, np.broadcast_to(k & 2 == 2, (cams, ns)))
+    # a packet's lanes: 8 random pixels and samples, one k and dimension
+    lanes = cams // 8 * 8
+    keys8 = rng.integers(0, 2 ** 32, lanes, dtype=np.uint64).astype(np.uint32)
+    samples8 = rng.integers(0, 2 ** 27 // ns, lanes).astype(np.int32)
+    ks8 = np.repeat(rng.integers(0, ns, lanes // 8), 8).astype(np.int32)
+    dims8 = np.repeat(rng.integers(0, 2 ** 32, lanes // 8, dtype=np.uint64).astype(np.uint32), 8)
+    light8, _, packed8 = _light_draws(SAMPLER_SOBOL, keys8, samples8, np.full(lanes, ns, np.int32), ks8, dims8)
+    assert packed8.tobytes() == light8.tobytes()
+
+
+@pytest.mark.parametrize("sampler, ns", [("sobol", 1), ("sobol", 3), ("sobol", 6), ("stratified", 4),
+                                         ("independent", 4), ("regular", 2)])
+def test_other_light_samples_are_drawn_at_sample_times_ns_plus_k(sampler, ns):
+    """``light_sample_2d`` is ``sample_2d_keyed`` at index sample * ns + k where the quadrant order
+    does not apply (another sampler, or ns not a power of two of at least 2)."""
+    from warprt.sampling import SAMPLER_IDS
+
+    rng = np.random.default_rng(ns)
+    n = 8 * 64
+    keys = rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
+    dims = rng.integers(0, 2 ** 32, n, dtype=np.uint64).astype(np.uint32)
+    samples = rng.integers(0, 16, n).astype(np.int32)
+    ks = rng.integers(0, ns, n).astype(np.int32)
+    light, plain, _ = _light_draws(SAMPLER_IDS[sampler], keys, samples, np.full(n, ns, np.int32), ks, dims)
+    assert light.tobytes() == plain.tobytes()

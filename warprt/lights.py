@@ -18,7 +18,8 @@ from ._warp import build_once
 from .accel import PACKET, PacketF, PacketI, PacketU, lane, lane_add, lane_addi, lane_i
 from .geometry import max_abs, shadow_rays_packet, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, SceneData
-from .sampling import SAMPLER_SOBOL, hash2, is_rectangle_edges, sample_2d_keyed, sobol_packet
+from .sampling import (SAMPLER_SOBOL, hash2, is_rectangle_edges, is_split_order, light_sample_2d, sobol_packet,
+                       sobol_split_packet)
 from .shading import blinn_phong, mul_sat, phong_power
 from .shapes import prepare_emitter, rect_draw_packet, sample_emitter
 from .trace import make_trace
@@ -296,7 +297,7 @@ def make_lights(F: Features) -> SimpleNamespace:
         if prep.ok == 0:
             return wp.vec4(0.0, 0.0, 0.0, 0.0)  # no light from it reaches p
         for k in range(ns):
-            u = sample_2d_keyed(params.sampler, pkey, sample * ns + k, params.spp * ns, dim)
+            u = light_sample_2d(params.sampler, pkey, sample, ns, k, params.spp, dim)
             e = sample_emitter(scene, kind, row, prep, p, u)
             if e.ok == 0:
                 continue
@@ -378,8 +379,11 @@ def make_lights(F: Features) -> SimpleNamespace:
                     ar[k] = 0.0
                     ag[k] = 0.0
                     ab[k] = 0.0
+                split = is_split_order(params.sampler, ns)
                 for s in range(ns):
-                    if params.sampler == SAMPLER_SOBOL:
+                    if split:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
+                        sobol_split_packet(sp.key, sp.sample, ns, s, dim, ux, uy)
+                    elif params.sampler == SAMPLER_SOBOL:
                         idx = PacketI()
                         for k in range(lanes):
                             idx[k] = sp.sample[k] * ns + s
@@ -387,7 +391,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                     else:
                         for k in range(lanes):
                             if (live >> k) & 1 != 0:
-                                u = sample_2d_keyed(params.sampler, sp.key[k], sp.sample[k] * ns + s, params.spp * ns,
+                                u = light_sample_2d(params.sampler, sp.key[k], lane_i(sp.sample, k), ns, s, params.spp,
                                                     dim)
                                 ux[k] = u[0]
                                 uy[k] = u[1]

@@ -177,6 +177,69 @@ def sample_2d(sampler: int, seed: wp.uint32, pixel: int, index: int, spp: int, d
 
 
 @wp.func
+def sobol_point(key: wp.uint32, i: wp.uint32) -> wp.vec2:
+    """Point i of the Sobol (0,2)-sequence, both coordinates Owen-scrambled by the dimension's
+    ``key`` (``sample_2d_keyed``'s Sobol branch after its index shuffle)."""
+    x = owen_scramble(reverse_bits(i), hash2(key, wp.uint32(0x5B1)))
+    y = owen_scramble(sobol_dim1(i), hash2(key, wp.uint32(0x5B2)))
+    return wp.vec2(u32_to_unit(x), u32_to_unit(y))
+
+
+@wp.func
+def parity(x: wp.uint32) -> wp.uint32:
+    """The xor of x's 32 bits."""
+    p = x ^ (x >> wp.uint32(16))
+    p = p ^ (p >> wp.uint32(8))
+    p = p ^ (p >> wp.uint32(4))
+    p = p ^ (p >> wp.uint32(2))
+    p = p ^ (p >> wp.uint32(1))
+    return p & wp.uint32(1)
+
+
+@wp.func
+def sobol_split_index(key: wp.uint32, sample: int, ns: int, k: int) -> wp.uint32:
+    """The shuffled Sobol index of light sample k of camera sample ``sample`` (``ns`` a power of
+    two, at least 2), drawn in quadrant order.
+
+    ``sample_2d_keyed`` would draw it at ``owen_scramble(sample * ns + k)``. That shuffle is a
+    nested scramble: its output's bits from m = log2(ns) up depend only on the input's bits from m
+    up, so the ns draws of one camera sample are the aligned block ``base`` + [0, ns) whatever k,
+    and which of them comes k-th is free. Here the k-th is the block's point in the light square's
+    quadrant k % 4 (the x half for ns = 2): the first digit of x is the index's bit 0 flipped by
+    x's scramble, of y the index's parity flipped by y's (Sobol's second dimension starts with the
+    xor of all the index's bits). A camera packet's lanes then send their k-th shadow rays towards
+    one quadrant of the light, whichever pixel or sample they are (``lights.area_lights_packet``),
+    and each camera sample's sum is over the same ns points as with the plain order."""
+    m = wp.uint32(ns - 1)
+    base = owen_scramble(wp.uint32(sample * ns), hash2(key, wp.uint32(0x5B0))) & ~m
+    kk = wp.uint32(k)
+    b0 = (kk ^ hash2(key, wp.uint32(0x5B1))) & wp.uint32(1)
+    low = b0 | (kk & ~wp.uint32(3))
+    if ns >= 4:
+        qy = (kk >> wp.uint32(1)) & wp.uint32(1)
+        b1 = (qy ^ hash2(key, wp.uint32(0x5B2)) ^ parity(base | low)) & wp.uint32(1)
+        low = low | (b1 << wp.uint32(1))
+    return base | low
+
+
+@wp.func
+def is_split_order(sampler: int, ns: int) -> bool:
+    """Whether light samples are drawn in quadrant order (``sobol_split_index``)."""
+    return sampler == SAMPLER_SOBOL and ns >= 2 and (ns & (ns - 1)) == 0
+
+
+@wp.func
+def light_sample_2d(sampler: int, pkey: wp.uint32, sample: int, ns: int, k: int, spp: int, dim: wp.uint32) -> wp.vec2:
+    """Light sample k of the ``ns`` per camera sample ``sample``: ``sample_2d_keyed`` at index
+    ``sample * ns + k``, the Sobol draws of a power-of-two ns in quadrant order
+    (``sobol_split_index``)."""
+    if is_split_order(sampler, ns):
+        key = hash2(pkey, dim)
+        return sobol_point(key, sobol_split_index(key, sample, ns, k))
+    return sample_2d_keyed(sampler, pkey, sample * ns + k, spp * ns, dim)
+
+
+@wp.func
 def sample_2d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp.uint32) -> wp.vec2:
     """``sample_2d`` for the pixel whose ``pixel_key(seed, pixel)`` is ``pkey`` (a kernel computes
     it once per pixel rather than once per sample and dimension)."""
@@ -185,10 +248,7 @@ def sample_2d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp
         h = hash2(key, wp.uint32(index))
         return wp.vec2(u32_to_unit(h), u32_to_unit(hash_u32(h ^ wp.uint32(0x68E31DA4))))
     if sampler == SAMPLER_SOBOL:  # Owen-scrambled, shuffled Sobol
-        i = owen_scramble(wp.uint32(index), hash2(key, wp.uint32(0x5B0)))
-        x = owen_scramble(reverse_bits(i), hash2(key, wp.uint32(0x5B1)))
-        y = owen_scramble(sobol_dim1(i), hash2(key, wp.uint32(0x5B2)))
-        return wp.vec2(u32_to_unit(x), u32_to_unit(y))
+        return sobol_point(key, owen_scramble(wp.uint32(index), hash2(key, wp.uint32(0x5B0))))
     # regular and stratified: an nx × ny grid of strata, one sample each
     n = wp.max(spp, 1)
     nx = grid_shape_x(n)
@@ -239,7 +299,9 @@ def sample_1d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp
 # ``sample_2d_keyed``'s Sobol points for the 8 lanes of a packet at once (each lane its pixel key
 # and sample index, one dimension key): the same integer hashes and scrambles as clang vectors
 # on the CPU, so every lane's point is the scalar one bit for bit; lane by lane elsewhere.
-_SOBOL_PACKET = r"""
+# ``_SOBOL_LANES`` is the lanes' part after the functions, @INDEX@ the shuffled index i from the
+# lane's key (K), the dimension's key (key) and the lane's input (I).
+_SOBOL_FUNCTIONS = r"""
 // the scalar functions' operations, for one lane (unsigned) or for 8 (clang vectors)
 auto hash_u32 = [](auto x) {
     x = x ^ (x >> 16u); x = x * 0x7FEB352Du; x = x ^ (x >> 15u); x = x * 0x846CA68Bu; x = x ^ (x >> 16u);
@@ -259,10 +321,13 @@ auto owen = [&](auto x, auto seed) {
     x = x ^ (x * 0x6C50B47Cu); x = x ^ (x * 0xB82F1E52u); x = x ^ (x * 0xC7AFE638u); x = x ^ (x * 0x8D22F6E6u);
     return reverse_bits(x);
 };
-// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled
+"""
+
+_SOBOL_LANES = r"""
+// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled (sobol_point)
 auto point = [&](auto K, auto I, auto& x, auto& y) {
     const auto key = hash2(K, dim);
-    const auto i = owen(I, hash2(key, 0x5B0u));
+    const auto i = @INDEX@;
     x = owen(reverse_bits(i), hash2(key, 0x5B1u));
     auto z = i;
     z = z ^ ((z >> 1u) & 0x55555555u); z = z ^ ((z >> 2u) & 0x33333333u); z = z ^ ((z >> 4u) & 0x0F0F0F0Fu);
@@ -289,11 +354,35 @@ for (int l = 0; l < 8; ++l) {
 }
 #endif
 """
+_SOBOL_PACKET = _SOBOL_FUNCTIONS + _SOBOL_LANES.replace("@INDEX@", "owen(I, hash2(key, 0x5B0u))")
+# sobol_split_index's operations: I is the lane's camera sample, m = ns - 1
+_SOBOL_SPLIT_PACKET = _SOBOL_FUNCTIONS + r"""
+const unsigned m = (unsigned)(ns - 1), kk = (unsigned)k;
+auto parity = [](auto x) {
+    x = x ^ (x >> 16u); x = x ^ (x >> 8u); x = x ^ (x >> 4u); x = x ^ (x >> 2u); x = x ^ (x >> 1u);
+    return x & 1u;
+};
+auto split_index = [&](auto key, auto I) {
+    const auto base = owen(I * (unsigned)ns, hash2(key, 0x5B0u)) & ~m;
+    auto low = ((kk ^ hash2(key, 0x5B1u)) & 1u) | (kk & ~3u);
+    if (ns >= 4) low = low | (((((kk >> 1u) & 1u) ^ hash2(key, 0x5B2u)) ^ parity(base | low)) & 1u) << 1u;
+    return base | low;
+};
+""" + _SOBOL_LANES.replace("@INDEX@", "split_index(key, I)").replace("&index", "&sample").replace(
+    "index[l]", "sample[l]")
 
 
 @wp.func_native(_SOBOL_PACKET)
 def sobol_packet(keys: PacketU, index: PacketI, dim: wp.uint32, out_x: wp.ref[PacketF], out_y: wp.ref[PacketF]):
     """``sample_2d_keyed(SAMPLER_SOBOL, keys[l], index[l], spp, dim)`` for the 8 lanes l."""
+    ...
+
+
+@wp.func_native(_SOBOL_SPLIT_PACKET)
+def sobol_split_packet(keys: PacketU, sample: PacketI, ns: int, k: int, dim: wp.uint32, out_x: wp.ref[PacketF],
+                       out_y: wp.ref[PacketF]):
+    """``light_sample_2d(SAMPLER_SOBOL, keys[l], sample[l], ns, k, spp, dim)`` for the 8 lanes l, ns
+    a power of two of at least 2 (``is_split_order``)."""
     ...
 
 # --- sampling maps -------------------------------------------------------------------------------
