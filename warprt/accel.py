@@ -110,6 +110,22 @@ def lane_addi(v: wp.ref[PacketI], k: int, x: int):
     ...
 
 
+# A lane mask (i8: -1 or 0 a lane) as the bits of an unsigned (lane l: bit l), through a vector of
+# bools, which is one mask-register move on AVX-512; ``__builtin_reduce_or(h & {1, 2, 4, ...})``
+# compiled to a masked load and three shuffle-and-or steps, on the path from a node's box tests
+# to the branch that picks its next node (the shadow packets' traversal: 0.94x the time on (d)'s
+# rays, docs/benchmarks.md, levers). Spliced into the snippets that need it.
+_BITS8 = r"""
+auto bits8 = [](i8 h) -> unsigned {
+    typedef bool b8 __attribute__((ext_vector_type(8)));
+    const b8 hb = __builtin_convertvector(h, b8);
+    unsigned char m;
+    __builtin_memcpy(&m, &hb, 1);
+    return m;
+};
+"""
+
+
 # The least of a clang vector's 8 lanes (none NaN) as packed minimums: ``__builtin_reduce_min``
 # keeps fmin's NaN rule, which LLVM expands to a serial chain of 8 scalar minimums, each with its
 # NaN check (perf: a fifth of a camera packet's time). Spliced into the snippets that need it.
@@ -623,10 +639,10 @@ _LANE_SLABS = r"""
 
 def _splice(snippet: str) -> str:
     """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
-    ``_PREFETCH``, ``_LEAST8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``, ``_LANE_SLABS``) in
-    place."""
+    ``_PREFETCH``, ``_LEAST8``, ``_BITS8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``,
+    ``_LANE_SLABS``) in place."""
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
-                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("LANE_SHEAR", _LANE_SHEAR),
+                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8), ("LANE_SHEAR", _LANE_SHEAR),
                        ("LANE_TRI", _LANE_TRI), ("LANE_SLABS", _LANE_SLABS), ("LANE_RAYS", _LANE_RAYS)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
@@ -796,6 +812,7 @@ if (nodes != 0) {
 typedef float v8 __attribute__((ext_vector_type(8)));
 typedef int i8 __attribute__((ext_vector_type(8)));
 @LEAST8@
+@BITS8@
 const float* N = (const float*)nodes; const int* C = (const int*)kids; const float* TR = (const float*)tris;
 const float* CN = (const float*)cones;
 @LANE_RAYS@
@@ -837,7 +854,7 @@ while (true) {
         }
         const v8 en = h ? tn : (v8)(3.0e38f);
         e[c] = least8(en);
-        m[c] = (unsigned)__builtin_reduce_or(h & (i8){1, 2, 4, 8, 16, 32, 64, 128});
+        m[c] = bits8(h);
     }
     bool changed = false;
     if (m[0] && k0 < 0) { for (unsigned q = m[0]; q; q &= q - 1) tri_test(-k0 - 1, __builtin_ctz(q)); m[0] = 0; changed = true; }
@@ -1638,6 +1655,7 @@ if (nodes != 0) {
     typedef float v8 __attribute__((ext_vector_type(8)));
     typedef int i8 __attribute__((ext_vector_type(8)));
 @LEAST8@
+@BITS8@
     const float* N = (const float*)nodes;
     const int* C = (const int*)kids;
     const float* TR = (const float*)tris;
@@ -1671,7 +1689,7 @@ if (nodes != 0) {
             const i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
             const v8 en = h ? tn : (v8)(3.0e38f);
             e[c] = least8(en);  // (entries are >= +0, never NaN)
-            m[c] = (unsigned)__builtin_reduce_or(h & (i8){1, 2, 4, 8, 16, 32, 64, 128});
+            m[c] = bits8(h);
         }
         bool changed = false;
         if (m[0] && k0 < 0) {
