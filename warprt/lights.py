@@ -21,7 +21,7 @@ from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, Sce
 from .sampling import (SAMPLER_SOBOL, hash2, is_rectangle_edges, is_split_order, light_sample_2d, sobol_packet,
                        sobol_split_packet)
 from .shading import blinn_phong, mul_sat, phong_power
-from .shapes import prepare_emitter, rect_draw_packet, sample_emitter
+from .shapes import RectKnots, prepare_emitter, rect_draw_packet, rect_setup_packet, sample_emitter
 from .trace import make_trace
 
 LIGHT_DIM_BASE = 16  # dimension keys of area light j: hash2(path key, LIGHT_DIM_BASE + j)
@@ -334,9 +334,10 @@ def make_lights(F: Features) -> SimpleNamespace:
                            live: int, skip: PacketI, face: PacketI) -> LightPacket:
         """``area_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes``
         - 1 whose bit is set in ``live``; their path key is the camera ray's, ROOT_KEY), each
-        lane's sum the same as alone, bit for bit: a rectangle's draws for all lanes at once
-        (``shapes.rect_draw_packet``), then each lane's shadow ray; other emitters, and lanes a
-        rectangle is drawn for by solid angle, one lane at a time. ``skip[k]`` = i + 1 where lane
+        lane's sum the same as alone, bit for bit: a rectangle's set-up and draws for all lanes
+        at once (``shapes.rect_setup_packet``, ``rect_draw_packet``), then each lane's shadow
+        ray; other emitters, and lanes a rectangle is drawn for by solid angle, one lane at a
+        time. ``skip[k]`` = i + 1 where lane
         k's point is on a face of mesh instance i with escape horizons, ``face[k]`` that face and
         side (its shadow rays above them pass that instance: ``trace.occluded_packet``), else 0."""
         out = LightPacket()
@@ -374,7 +375,12 @@ def make_lights(F: Features) -> SimpleNamespace:
                 if is_rectangle_edges(rec.e1, rec.e2):
                     square = 1
                 stop = 2.0 * spawn_offset(max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2))
-                drawn = int(0)
+                # the lanes' set-up once (the cosine warp's knots), then their ns draws from it
+                knots = RectKnots()
+                ready = rect_setup_packet(rec.c, rec.e1, rec.e2, rec.n, params.light_sampling, square, live, sp.px,
+                                          sp.py, sp.pz, sp.nx, sp.ny, sp.nz, knots)
+                scalar = ready >> 8
+                drawn = live & ~scalar
                 for k in range(PACKET):
                     ar[k] = 0.0
                     ag[k] = 0.0
@@ -395,10 +401,8 @@ def make_lights(F: Features) -> SimpleNamespace:
                                                     dim)
                                 ux[k] = u[0]
                                 uy[k] = u[1]
-                    m = rect_draw_packet(rec.c, rec.e1, rec.e2, rec.n, area, params.light_sampling, square, live,
-                                         sp.px, sp.py, sp.pz, sp.nx, sp.ny, sp.nz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
-                    scalar = m >> 8
-                    drawn = live & ~scalar
+                    m = rect_draw_packet(rec.c, rec.e1, rec.e2, rec.n, area, params.light_sampling, ready & 255, knots,
+                                         sp.px, sp.py, sp.pz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
                     go = int(0)  # the lanes whose sample lights them if nothing is in the way
                     # blinn_phong for the lanes: its geometry at once, then each lane's colour
                     m = lobe_packet(m & 255, l0, l1, l2, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz,

@@ -16,6 +16,7 @@ over each kind's table in ``trace``. Meshes are instances of ``wp.Mesh`` assets,
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass
 from typing import Callable
 
@@ -352,41 +353,37 @@ def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
 
 
 
-# Rectangle lights drawn for a packet's 8 shading points at once (``rect_draw_packet``): what
-# ``prepare_rect_emitter`` and ``sample_rect_prepared`` compute for each lane, area draws with or
-# without the cosine warp, as clang vectors on the CPU: the same operations in the same order
-# (Warp's CPU fmax / fmin, no contraction: Warp's C++ compiler fuses nothing), so each lane's
-# point, direction and 1/density are the scalar draw's bit for bit. About a fifth of the scalar
-# draw's time per lane (docs/benchmarks.md, levers). Lanes the rectangle is drawn for by solid
-# angle (near it, square edges: the spherical rectangle) come back flagged for the scalar draw,
-# as every lane does on CUDA.
-_RECT_DRAW_PACKET = r"""
-int res = 0;
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
+# Rectangle lights drawn for a packet's 8 shading points at once: what ``prepare_rect_emitter``
+# and ``sample_rect_prepared`` compute for each lane, area draws with or without the cosine warp,
+# as clang vectors on the CPU: the same operations in the same order (Warp's CPU fmax / fmin, no
+# contraction: Warp's C++ compiler fuses nothing), so each lane's point, direction and 1/density
+# are the scalar draw's bit for bit. About a fifth of the scalar draw's time per lane
+# (docs/benchmarks.md, levers). Like the scalar draws, the set-up (``rect_setup_packet``: the
+# facing and near tests, the cosine warp's 9 knots and their sum, in ``RectKnots``) is made once
+# per packet and light, then each of its draws (``rect_draw_packet``) takes a 2D sample per lane.
+# Lanes the rectangle is drawn for by solid angle (near it, square edges: the spherical
+# rectangle) come back flagged for the scalar draw, as every lane does on CUDA.
+RectKnots = wp.types.matrix(shape=(10, 8), dtype=wp.float32)  # the 9 knots (row i, column j: 3i + j), their sum
+
+_RECT_PACKET_HEAD = r"""
 typedef float v8 __attribute__((ext_vector_type(8)));
 typedef int i8 __attribute__((ext_vector_type(8)));
-v8 Px, Py, Pz, Nx, Ny, Nz, U0, U1;
-__builtin_memcpy(&Px, &px, 32); __builtin_memcpy(&Py, &py, 32); __builtin_memcpy(&Pz, &pz, 32);
-__builtin_memcpy(&Nx, &nx, 32); __builtin_memcpy(&Ny, &ny, 32); __builtin_memcpy(&Nz, &nz, 32);
-__builtin_memcpy(&U0, &ux, 32); __builtin_memcpy(&U1, &uy, 32);
 // Warp's CPU fmax and fmin (builtin.h; clamp is fmin(fmax(lo, x), hi)), lane by lane
 auto vmax = [](v8 a, v8 b) -> v8 { return a >= b ? a : (b == b ? b : a); };
 auto vmin = [](v8 a, v8 b) -> v8 { return a <= b ? a : (b == b ? b : a); };
 auto vsqrt = [](v8 x) -> v8 { return __builtin_elementwise_sqrt(x); };
 const v8 zero = (v8)(0.0f), one = (v8)(1.0f);
-// sampling.sample_linear and sampling.sample_two_linear (both halves computed, then selected)
-auto sample_linear = [&](v8 u, v8 a, v8 b) -> v8 {
-    const v8 x = (u * (a + b)) / (a + vsqrt(((1.0f - u) * a) * a + (u * b) * b));
-    return x >= 0.0f ? vmin(x, one) : zero;
-};
-auto sample_two_linear = [&](v8 u, v8 a, v8 b, v8 c) -> v8 {
-    const v8 m0 = a + b, m1 = b + c;
-    const v8 t = u * (m0 + m1);
-    const v8 r0 = 0.5f * sample_linear(vmin(t / m0, one), a, b);
-    const v8 r1 = 0.5f + 0.5f * sample_linear(vmin(vmax(zero, (t - m0) / m1), one), b, c);
-    return t < m0 ? r0 : r1;
-};
+v8 Px, Py, Pz;
+__builtin_memcpy(&Px, &px, 32); __builtin_memcpy(&Py, &py, 32); __builtin_memcpy(&Pz, &pz, 32);
 const float cx = c[0], cy = c[1], cz = c[2], ax = e1[0], ay = e1[1], az = e1[2], bx = e2[0], by = e2[1], bz = e2[2];
+"""
+
+_RECT_SETUP_PACKET = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+@HEAD@
+v8 Nx, Ny, Nz;
+__builtin_memcpy(&Nx, &nx, 32); __builtin_memcpy(&Ny, &ny, 32); __builtin_memcpy(&Nz, &nz, 32);
 // the lanes asked for whose p is in front of the one-sided emitter: dot(rec.n, p - rec.c) > 0
 const v8 qx = Px - cx, qy = Py - cy, qz = Pz - cz;
 i8 ok = (ln[0] * qx + ln[1] * qy + ln[2] * qz) > 0.0f;
@@ -406,37 +403,73 @@ for (int l = 0; l < 8; ++l) res |= ok[l] & solid[l] ? 1 << (8 + l) : 0;
 ok &= ~solid;
 bool any = false;
 for (int l = 0; l < 8; ++l) any = any || ok[l];
-if (any) {
+if (any && cosine != 0) {
+    // shapes.rect_cosine_weights (by area), then sampling.grid_warp_setup
+    const v8 d0x = cx - Px, d0y = cy - Py, d0z = cz - Pz;
+    v8 W[3][3];
+    v8 top = zero;
+    for (int i = 0; i < 3; ++i) {
+        const float si = 0.5f * (float)i;
+        for (int j = 0; j < 3; ++j) {
+            const float sj = 0.5f * (float)j;
+            const v8 dx = (d0x + si * ax) + sj * bx, dy = (d0y + si * ay) + sj * by, dz = (d0z + si * az) + sj * bz;
+            const v8 r = vsqrt(dx * dx + dy * dy + dz * dz);
+            v8 v = vmax((Nx * dx + Ny * dy + Nz * dz) / r, zero);
+            v = v / ((r * r) * r);
+            W[i][j] = v;
+            top = vmax(top, v);
+        }
+    }
+    ok &= (top > 0.0f) & (top < 3.0e38f);
+    const v8 lo = 0.01f * top;  // COSINE_FLOOR
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) W[i][j] = vmax(W[i][j], lo);
+    ok &= W[0][0] > 0.0f;
+    v8 total = zero + ((W[0][0] + 2.0f * W[0][1]) + W[0][2]) * 1.0f;
+    total = total + ((W[1][0] + 2.0f * W[1][1]) + W[1][2]) * 2.0f;
+    total = total + ((W[2][0] + 2.0f * W[2][1]) + W[2][2]) * 1.0f;
+    for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) __builtin_memcpy(&knots.data[3 * i + j][0], &W[i][j], 32);
+    __builtin_memcpy(&knots.data[9][0], &total, 32);
+}
+for (int l = 0; l < 8; ++l) res |= ok[l] ? 1 << l : 0;
+#else
+res = lanes << 8;  // no clang vectors (CUDA): every lane to the scalar draw
+#endif
+return res;
+""".replace("@HEAD@\n", _RECT_PACKET_HEAD.lstrip("\n"))
+
+_RECT_DRAW_PACKET = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+if (lanes != 0) {
+@HEAD@
+    v8 U0, U1;
+    __builtin_memcpy(&U0, &ux, 32); __builtin_memcpy(&U1, &uy, 32);
+    // sampling.sample_linear and sampling.sample_two_linear (both halves computed, then selected)
+    auto sample_linear = [&](v8 u, v8 a, v8 b) -> v8 {
+        const v8 x = (u * (a + b)) / (a + vsqrt(((1.0f - u) * a) * a + (u * b) * b));
+        return x >= 0.0f ? vmin(x, one) : zero;
+    };
+    auto sample_two_linear = [&](v8 u, v8 a, v8 b, v8 c) -> v8 {
+        const v8 m0 = a + b, m1 = b + c;
+        const v8 t = u * (m0 + m1);
+        const v8 r0 = 0.5f * sample_linear(vmin(t / m0, one), a, b);
+        const v8 r1 = 0.5f + 0.5f * sample_linear(vmin(vmax(zero, (t - m0) / m1), one), b, c);
+        return t < m0 ? r0 : r1;
+    };
+    i8 ok;
+    for (int l = 0; l < 8; ++l) ok[l] = (lanes >> l) & 1 ? -1 : 0;
     v8 X = U0, Y = U1, pdf = one;
     if (cosine != 0) {
-        // shapes.rect_cosine_weights (by area), then sampling.grid_warp_setup
-        const v8 d0x = cx - Px, d0y = cy - Py, d0z = cz - Pz;
-        v8 W[3][3];
-        v8 top = zero;
-        for (int i = 0; i < 3; ++i) {
-            const float si = 0.5f * (float)i;
-            for (int j = 0; j < 3; ++j) {
-                const float sj = 0.5f * (float)j;
-                const v8 dx = (d0x + si * ax) + sj * bx, dy = (d0y + si * ay) + sj * by, dz = (d0z + si * az) + sj * bz;
-                const v8 r = vsqrt(dx * dx + dy * dy + dz * dz);
-                v8 v = vmax((Nx * dx + Ny * dy + Nz * dz) / r, zero);
-                v = v / ((r * r) * r);
-                W[i][j] = v;
-                top = vmax(top, v);
-            }
-        }
-        ok &= (top > 0.0f) & (top < 3.0e38f);
-        const v8 lo = 0.01f * top;  // COSINE_FLOOR
+        // sampling.grid_warp_sample: y from the rows' masses, x along the row interpolated at y
+        v8 W[3][3], total;
         for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < 3; ++j) W[i][j] = vmax(W[i][j], lo);
-        ok &= W[0][0] > 0.0f;
+            for (int j = 0; j < 3; ++j) __builtin_memcpy(&W[i][j], &knots.data[3 * i + j][0], 32);
+        __builtin_memcpy(&total, &knots.data[9][0], 32);
         const v8 g0 = (W[0][0] + 2.0f * W[1][0]) + W[2][0];
         const v8 g1 = (W[0][1] + 2.0f * W[1][1]) + W[2][1];
         const v8 g2 = (W[0][2] + 2.0f * W[1][2]) + W[2][2];
-        v8 total = zero + ((W[0][0] + 2.0f * W[0][1]) + W[0][2]) * 1.0f;
-        total = total + ((W[1][0] + 2.0f * W[1][1]) + W[1][2]) * 2.0f;
-        total = total + ((W[2][0] + 2.0f * W[2][1]) + W[2][2]) * 1.0f;
-        // sampling.grid_warp_sample: y from the rows' masses, x along the row interpolated at y
         Y = sample_two_linear(U1, g0, g1, g2);
         const i8 low = Y < 0.5f;
         const v8 t0 = 2.0f * Y, t1 = 2.0f * Y - 1.0f;
@@ -461,24 +494,32 @@ if (any) {
     __builtin_memcpy(&out_ip, &ip, 32);
     for (int l = 0; l < 8; ++l) res |= ok[l] ? 1 << l : 0;
 }
-#else
-res = lanes << 8;  // no clang vectors (CUDA): every lane to the scalar draw
 #endif
 return res;
-"""
+""".replace("@HEAD@\n", textwrap.indent(_RECT_PACKET_HEAD.lstrip("\n"), "    "))
+
+
+@wp.func_native(_RECT_SETUP_PACKET)
+def rect_setup_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, ln: wp.vec3, cosine: int, square: int, lanes: int,
+                      px: PacketF, py: PacketF, pz: PacketF, nx: PacketF, ny: PacketF, nz: PacketF,
+                      knots: wp.ref[RectKnots]) -> int:
+    """For each lane in the bit mask ``lanes`` (shading point p, shading normal n) of the rectangle
+    (corner c, edges e1, e2, unit normal ln, ``square``: its edges are square), ``prepare_rect_emitter``:
+    the cosine warp's knots and their sum into ``knots``. Returns bit l set where lane l can be
+    drawn (``rect_draw_packet``), bit 8 + l where the scalar draw must take lane l (see above)."""
+    ...
 
 
 @wp.func_native(_RECT_DRAW_PACKET)
-def rect_draw_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, ln: wp.vec3, area: float, cosine: int, square: int,
-                     lanes: int, px: PacketF, py: PacketF, pz: PacketF, nx: PacketF, ny: PacketF, nz: PacketF,
-                     ux: PacketF, uy: PacketF, out_y0: wp.ref[PacketF], out_y1: wp.ref[PacketF],
-                     out_y2: wp.ref[PacketF], out_l0: wp.ref[PacketF], out_l1: wp.ref[PacketF],
-                     out_l2: wp.ref[PacketF], out_ip: wp.ref[PacketF]) -> int:
-    """For each lane in the bit mask ``lanes`` (shading point p, shading normal n, 2D sample u) of
-    the rectangle (corner c, edges e1, e2, unit normal ln, area, ``square``: its edges are square):
-    the drawn point, the unit direction to it and 1/density, as ``prepare_rect_emitter`` then
-    ``sample_rect_prepared`` give them. Returns bit l set where lane l has a sample, bit 8 + l
-    where the scalar draw must take lane l (see above)."""
+def rect_draw_packet(c: wp.vec3, e1: wp.vec3, e2: wp.vec3, ln: wp.vec3, area: float, cosine: int, lanes: int,
+                     knots: RectKnots, px: PacketF, py: PacketF, pz: PacketF, ux: PacketF, uy: PacketF,
+                     out_y0: wp.ref[PacketF], out_y1: wp.ref[PacketF], out_y2: wp.ref[PacketF],
+                     out_l0: wp.ref[PacketF], out_l1: wp.ref[PacketF], out_l2: wp.ref[PacketF],
+                     out_ip: wp.ref[PacketF]) -> int:
+    """``sample_rect_prepared`` for each lane in the bit mask ``lanes`` (the lanes
+    ``rect_setup_packet`` set bit l for; shading point p, 2D sample u) from that set-up's
+    ``knots``: the drawn point, the unit direction to it and 1/density. Returns bit l set where
+    lane l has a sample."""
     ...
 
 
