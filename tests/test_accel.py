@@ -993,9 +993,10 @@ def test_shadow_packets_render_what_each_lane_renders_alone(monkeypatch):
     (``trace.mesh_lanes_occluded``); the images are the same bit for bit as with each lane alone:
     with the interior balls and normal cones, without either, with one and four light samples."""
     scene = _balls_scene()
+    monkeypatch.setattr(accel, "SHADOW_PACKET_TRIANGLES", 4096)
     small = warprt.Renderer(scene, device="cpu")
-    assert int(small.built.data.insts.numpy()["shadow_packets"][0]) == 0  # (2k triangles: below the size)
-    monkeypatch.setattr(accel, "SHADOW_PACKET_TRIANGLES", 1024)
+    assert int(small.built.data.insts.numpy()["shadow_packets"][0]) == 0  # (1280 triangles: below that size)
+    monkeypatch.setattr(accel, "SHADOW_PACKET_TRIANGLES", 1280)
     for samples in (1, 4):
         light = dataclasses.replace(scene.lights[0], samples=samples)
         r = warprt.Renderer(scene.replace(lights=(light,)), device="cpu")

@@ -801,10 +801,13 @@ def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root:
 # triangle tested for those lanes with each lane's shear (``_WOOP``) and ``leaves_face``'s check,
 # and a lane retired at its first occluder. Every lane's answer is the one it gets alone (any-hit:
 # an occluder exists or not, in whatever order the leaves are met). On (d)'s 328k-triangle torus
-# it took 0.83x the time of one ray at a time (docs/benchmarks.md, levers); on small meshes,
-# whose traversals are short, the lanes' set-up costs more than it saves, so the renderer takes
-# it only for meshes of SHADOW_PACKET_TRIANGLES or more (``MeshTree.record``'s shadow_packets).
-SHADOW_PACKET_TRIANGLES = 65536
+# it took 0.83x the time of one ray at a time, 0.75x with the lanes' light points in one quarter
+# of the light (``sampling.sobol_split_index``); with those, (e)'s 1.3k- and 4k-triangle meshes
+# gain a little too (0.95-0.98x a sample with 4 light samples, 1.00x with 1 or 2: docs/benchmarks.md,
+# levers). On the smallest meshes, whose traversals are a few nodes, the lanes' set-up would cost
+# more than it saves, so the renderer takes it for meshes of SHADOW_PACKET_TRIANGLES or more
+# (``MeshTree.record``'s shadow_packets).
+SHADOW_PACKET_TRIANGLES = 1024
 SHADOW_PACKET_MIN = 4  # the fewest lanes in a mesh's box worth a packet
 _TREE_OCCLUDED_PACKET = _splice(r"""
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
