@@ -290,7 +290,7 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     a sphere and a disk light, one to four samples per light, specular materials, both
     light-sampling modes, full and part packets, packets over several pixels (adaptive counts),
     and with Sobol points drawn for the 8 lanes at once (``sampling.sobol_packet``, and
-    ``sobol_split_packet`` for the light with four samples, drawn in quadrant order)."""
+    ``sobol_split_draw`` for the light with four samples, drawn in quadrant order)."""
     from warprt.trace import PACKET
 
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),
@@ -306,7 +306,7 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
               warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="floor"))
     lights = (
         # near the floor: drawn by solid angle below it, by the cosine warp farther off
-        # four samples: with Sobol drawn in quadrant order (sampling.sobol_split_packet)
+        # four samples: with Sobol drawn in quadrant order (sampling.sobol_split_draw)
         warprt.RectLight(corner=(-2.2, 0.45, -1.0), edge1=(1.2, 0.0, 0.0), edge2=(0.0, 0.0, 0.8), radiance=(2.0, 1.8, 1.5),
                          samples=4),
         # far, tilted, and sheared (never by solid angle), three samples

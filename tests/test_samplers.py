@@ -161,11 +161,12 @@ def test_sobol_points_drawn_for_a_packet_are_each_lanes_own():
 
 def _light_draws(sampler_id, keys, samples, ns, ks, dims):
     """``light_sample_2d`` and ``sample_2d_keyed`` at ``sample * ns + k`` for each entry, and
-    ``sobol_split_packet`` for the entries in groups of 8 (one ns, k and dimension a group)."""
+    ``sobol_split_setup`` then ``sobol_split_draw`` for the entries in groups of 8 (one ns, k and
+    dimension a group)."""
     import warp as wp
 
     from warprt.accel import PacketF, PacketI, PacketU
-    from warprt.sampling import light_sample_2d, sample_2d_keyed, sobol_split_packet
+    from warprt.sampling import SplitDraws, light_sample_2d, sample_2d_keyed, sobol_split_draw, sobol_split_setup
 
     @wp.kernel(enable_backward=False)
     def draws(sampler: int, keys: wp.array(dtype=wp.uint32), samples: wp.array(dtype=wp.int32),
@@ -183,7 +184,9 @@ def _light_draws(sampler_id, keys, samples, ns, ks, dims):
         x = PacketF()
         y = PacketF()
         if ns[g * 8] >= 2 and (ns[g * 8] & (ns[g * 8] - 1)) == 0:
-            sobol_split_packet(k8, s8, ns[g * 8], ks[g * 8], dims[g * 8], x, y)
+            state = SplitDraws()
+            sobol_split_setup(k8, s8, ns[g * 8], dims[g * 8], state)
+            sobol_split_draw(state, ns[g * 8], ks[g * 8], x, y)
         for lane in range(8):
             packed[g * 8 + lane] = wp.vec2(x[lane], y[lane])
 
@@ -202,7 +205,7 @@ def test_split_light_samples_are_the_same_points_in_quadrant_order(ns):
     (``sampling.light_sample_2d``) are the points ``sample_2d_keyed`` draws at indices
     sample * ns + [0, ns), bit for bit, in another order: the k-th in the light square's quadrant
     k % 4 (for ns = 2, the k-th in half k of x); the 8 lanes' draws of a packet
-    (``sobol_split_packet``) are each lane's own, bit for bit. Random pixel and dimension keys,
+    (``sobol_split_setup``, ``sobol_split_draw``) are each lane's own, bit for bit. Random pixel and dimension keys,
     camera samples up to 2^27 / ns."""
     from warprt.sampling import SAMPLER_SOBOL
 

@@ -18,8 +18,8 @@ from ._warp import build_once
 from .accel import PACKET, PacketF, PacketI, PacketU, lane, lane_add, lane_addi, lane_i
 from .geometry import max_abs, shadow_rays_packet, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, SceneData
-from .sampling import (SAMPLER_SOBOL, hash2, is_rectangle_edges, is_split_order, light_sample_2d, sobol_packet,
-                       sobol_split_packet)
+from .sampling import (SAMPLER_SOBOL, SplitDraws, hash2, is_rectangle_edges, is_split_order, light_sample_2d,
+                       sobol_packet, sobol_split_draw, sobol_split_setup)
 from .shading import blinn_phong, mul_sat, phong_power
 from .shapes import RectKnots, prepare_emitter, rect_draw_packet, rect_setup_packet, sample_emitter
 from .trace import make_trace
@@ -386,9 +386,12 @@ def make_lights(F: Features) -> SimpleNamespace:
                     ag[k] = 0.0
                     ab[k] = 0.0
                 split = is_split_order(params.sampler, ns)
+                draws = SplitDraws()
+                if split:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
+                    sobol_split_setup(sp.key, sp.sample, ns, dim, draws)
                 for s in range(ns):
-                    if split:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
-                        sobol_split_packet(sp.key, sp.sample, ns, s, dim, ux, uy)
+                    if split:
+                        sobol_split_draw(draws, ns, s, ux, uy)
                     elif params.sampler == SAMPLER_SOBOL:
                         idx = PacketI()
                         for k in range(lanes):

@@ -299,8 +299,6 @@ def sample_1d_keyed(sampler: int, pkey: wp.uint32, index: int, spp: int, dim: wp
 # ``sample_2d_keyed``'s Sobol points for the 8 lanes of a packet at once (each lane its pixel key
 # and sample index, one dimension key): the same integer hashes and scrambles as clang vectors
 # on the CPU, so every lane's point is the scalar one bit for bit; lane by lane elsewhere.
-# ``_SOBOL_LANES`` is the lanes' part after the functions, @INDEX@ the shuffled index i from the
-# lane's key (K), the dimension's key (key) and the lane's input (I).
 _SOBOL_FUNCTIONS = r"""
 // the scalar functions' operations, for one lane (unsigned) or for 8 (clang vectors)
 auto hash_u32 = [](auto x) {
@@ -321,18 +319,20 @@ auto owen = [&](auto x, auto seed) {
     x = x ^ (x * 0x6C50B47Cu); x = x ^ (x * 0xB82F1E52u); x = x ^ (x * 0xC7AFE638u); x = x ^ (x * 0x8D22F6E6u);
     return reverse_bits(x);
 };
-"""
-
-_SOBOL_LANES = r"""
-// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled (sobol_point)
-auto point = [&](auto K, auto I, auto& x, auto& y) {
-    const auto key = hash2(K, dim);
-    const auto i = @INDEX@;
-    x = owen(reverse_bits(i), hash2(key, 0x5B1u));
+// sobol_point: point i's coordinates, scrambled with the dimension's seeds for x (sx) and y (sy)
+auto scramble = [&](auto i, auto sx, auto sy, auto& x, auto& y) {
+    x = owen(reverse_bits(i), sx);
     auto z = i;
     z = z ^ ((z >> 1u) & 0x55555555u); z = z ^ ((z >> 2u) & 0x33333333u); z = z ^ ((z >> 4u) & 0x0F0F0F0Fu);
     z = z ^ ((z >> 8u) & 0x00FF00FFu); z = z ^ ((z >> 16u) & 0x0000FFFFu);
-    y = owen(reverse_bits(z), hash2(key, 0x5B2u));
+    y = owen(reverse_bits(z), sy);
+};
+"""
+_SOBOL_PACKET = _SOBOL_FUNCTIONS + r"""
+// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled
+auto point = [&](auto K, auto I, auto& x, auto& y) {
+    const auto key = hash2(K, dim);
+    scramble(owen(I, hash2(key, 0x5B0u)), hash2(key, 0x5B1u), hash2(key, 0x5B2u), x, y);
 };
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
 typedef unsigned int u8v __attribute__((ext_vector_type(8)));
@@ -354,22 +354,66 @@ for (int l = 0; l < 8; ++l) {
 }
 #endif
 """
-_SOBOL_PACKET = _SOBOL_FUNCTIONS + _SOBOL_LANES.replace("@INDEX@", "owen(I, hash2(key, 0x5B0u))")
-# sobol_split_index's operations: I is the lane's camera sample, m = ns - 1
-_SOBOL_SPLIT_PACKET = _SOBOL_FUNCTIONS + r"""
-const unsigned m = (unsigned)(ns - 1), kk = (unsigned)k;
+# sobol_split_index for a packet's lanes in two steps: once per light (``sobol_split_setup``) the
+# seeds of x and y and the camera sample's block, ``base``, in a ``SplitDraws`` (rows 0 to 2, a
+# column per lane); then for each draw k (``sobol_split_draw``) its low bits and the point
+SplitDraws = wp.types.matrix(shape=(3, 8), dtype=wp.uint32)
+_SOBOL_SPLIT_SETUP = _SOBOL_FUNCTIONS + r"""
+auto setup = [&](auto K, auto I, auto& sx, auto& sy, auto& base) {
+    const auto key = hash2(K, dim);
+    sx = hash2(key, 0x5B1u);
+    sy = hash2(key, 0x5B2u);
+    base = owen(I * (unsigned)ns, hash2(key, 0x5B0u)) & ~(unsigned)(ns - 1);
+};
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef unsigned int u8v __attribute__((ext_vector_type(8)));
+u8v K, I, SX, SY, B;
+__builtin_memcpy(&K, &keys, 32);
+__builtin_memcpy(&I, &sample, 32);
+setup(K, I, SX, SY, B);
+__builtin_memcpy(&out.data[0][0], &SX, 32);
+__builtin_memcpy(&out.data[1][0], &SY, 32);
+__builtin_memcpy(&out.data[2][0], &B, 32);
+#else
+for (int l = 0; l < 8; ++l) {
+    unsigned sx, sy, base;
+    setup((unsigned)keys[l], (unsigned)sample[l], sx, sy, base);
+    out.data[0][l] = sx; out.data[1][l] = sy; out.data[2][l] = base;
+}
+#endif
+"""
+_SOBOL_SPLIT_DRAW = _SOBOL_FUNCTIONS + r"""
+const unsigned kk = (unsigned)k;
 auto parity = [](auto x) {
     x = x ^ (x >> 16u); x = x ^ (x >> 8u); x = x ^ (x >> 4u); x = x ^ (x >> 2u); x = x ^ (x >> 1u);
     return x & 1u;
 };
-auto split_index = [&](auto key, auto I) {
-    const auto base = owen(I * (unsigned)ns, hash2(key, 0x5B0u)) & ~m;
-    auto low = ((kk ^ hash2(key, 0x5B1u)) & 1u) | (kk & ~3u);
-    if (ns >= 4) low = low | (((((kk >> 1u) & 1u) ^ hash2(key, 0x5B2u)) ^ parity(base | low)) & 1u) << 1u;
-    return base | low;
+auto draw = [&](auto sx, auto sy, auto base, auto& x, auto& y) {
+    auto low = ((kk ^ sx) & 1u) | (kk & ~3u);
+    if (ns >= 4) low = low | ((((((kk >> 1u) & 1u) ^ sy) ^ parity(base | low)) & 1u) << 1u);
+    scramble(base | low, sx, sy, x, y);
 };
-""" + _SOBOL_LANES.replace("@INDEX@", "split_index(key, I)").replace("&index", "&sample").replace(
-    "index[l]", "sample[l]")
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef unsigned int u8v __attribute__((ext_vector_type(8)));
+typedef float v8 __attribute__((ext_vector_type(8)));
+u8v SX, SY, B, X, Y;
+__builtin_memcpy(&SX, &state.data[0][0], 32);
+__builtin_memcpy(&SY, &state.data[1][0], 32);
+__builtin_memcpy(&B, &state.data[2][0], 32);
+draw(SX, SY, B, X, Y);
+const v8 fx = __builtin_convertvector(X >> 8u, v8) * 5.9604644775390625e-08f;  // u32_to_unit
+const v8 fy = __builtin_convertvector(Y >> 8u, v8) * 5.9604644775390625e-08f;
+__builtin_memcpy(&out_x, &fx, 32);
+__builtin_memcpy(&out_y, &fy, 32);
+#else
+for (int l = 0; l < 8; ++l) {
+    unsigned X, Y;
+    draw(state.data[0][l], state.data[1][l], state.data[2][l], X, Y);
+    out_x[l] = (float)(X >> 8u) * 5.9604644775390625e-08f;
+    out_y[l] = (float)(Y >> 8u) * 5.9604644775390625e-08f;
+}
+#endif
+"""
 
 
 @wp.func_native(_SOBOL_PACKET)
@@ -378,11 +422,18 @@ def sobol_packet(keys: PacketU, index: PacketI, dim: wp.uint32, out_x: wp.ref[Pa
     ...
 
 
-@wp.func_native(_SOBOL_SPLIT_PACKET)
-def sobol_split_packet(keys: PacketU, sample: PacketI, ns: int, k: int, dim: wp.uint32, out_x: wp.ref[PacketF],
-                       out_y: wp.ref[PacketF]):
-    """``light_sample_2d(SAMPLER_SOBOL, keys[l], sample[l], ns, k, spp, dim)`` for the 8 lanes l, ns
-    a power of two of at least 2 (``is_split_order``)."""
+@wp.func_native(_SOBOL_SPLIT_SETUP)
+def sobol_split_setup(keys: PacketU, sample: PacketI, ns: int, dim: wp.uint32, out: wp.ref[SplitDraws]):
+    """The 8 lanes' part of ``sobol_split_index`` shared by the ns draws of camera sample
+    ``sample[l]`` of the pixel keyed ``keys[l]`` in dimension ``dim`` (ns a power of two of at
+    least 2: ``is_split_order``), for ``sobol_split_draw``."""
+    ...
+
+
+@wp.func_native(_SOBOL_SPLIT_DRAW)
+def sobol_split_draw(state: SplitDraws, ns: int, k: int, out_x: wp.ref[PacketF], out_y: wp.ref[PacketF]):
+    """``light_sample_2d(SAMPLER_SOBOL, keys[l], sample[l], ns, k, spp, dim)`` for the 8 lanes l,
+    from ``sobol_split_setup``'s ``state`` for those keys, samples, ns and dimension."""
     ...
 
 # --- sampling maps -------------------------------------------------------------------------------
