@@ -1,6 +1,7 @@
 """The samplers' point sets, checked directly (``warprt.query.pixel_samples`` / ``pixel_samples_1d``
 run the renderer's own ``sample_2d`` / ``sample_1d``): range, stratification, net properties and
-determinism. Rendered consequences (convergence rates, moiré) are in test_distribution.py and
+determinism; the light samples' order (``light_sample_2d``) and the packets' draws against each
+lane's. Rendered consequences (convergence rates, moiré) are in test_distribution.py and
 stability/test_moire.py."""
 
 from __future__ import annotations
@@ -205,8 +206,8 @@ def test_split_light_samples_are_the_same_points_in_quadrant_order(ns):
     (``sampling.light_sample_2d``) are the points ``sample_2d_keyed`` draws at indices
     sample * ns + [0, ns), bit for bit, in another order: the k-th in the light square's quadrant
     k % 4 (for ns = 2, the k-th in half k of x); the 8 lanes' draws of a packet
-    (``sobol_split_setup``, ``sobol_split_draw``) are each lane's own, bit for bit. Random pixel and dimension keys,
-    camera samples up to 2^27 / ns."""
+    (``sobol_split_setup``, ``sobol_split_draw``) are each lane's own, bit for bit. Random pixel
+    and dimension keys, camera samples up to 2^27 / ns."""
     from warprt.sampling import SAMPLER_SOBOL
 
     rng = np.random.default_rng(ns)

@@ -113,8 +113,8 @@ def lane_addi(v: wp.ref[PacketI], k: int, x: int):
 # A lane mask (i8: -1 or 0 a lane) as the bits of an unsigned (lane l: bit l), through a vector of
 # bools, which is one mask-register move on AVX-512; ``__builtin_reduce_or(h & {1, 2, 4, ...})``
 # compiled to a masked load and three shuffle-and-or steps, on the path from a node's box tests
-# to the branch that picks its next node (the shadow packets' traversal: 0.94x the time on (d)'s
-# rays, docs/benchmarks.md, levers). Spliced into the snippets that need it.
+# to the branch that picks its next node (the shadow packets' traversal of (d)'s rays took 0.93x
+# the time with the bits: docs/benchmarks.md, levers). Spliced into the snippets that need it.
 _BITS8 = r"""
 auto bits8 = [](i8 h) -> unsigned {
     typedef bool b8 __attribute__((ext_vector_type(8)));
@@ -642,8 +642,9 @@ def _splice(snippet: str) -> str:
     ``_PREFETCH``, ``_LEAST8``, ``_BITS8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``,
     ``_LANE_SLABS``) in place."""
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
-                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8), ("LANE_SHEAR", _LANE_SHEAR),
-                       ("LANE_TRI", _LANE_TRI), ("LANE_SLABS", _LANE_SLABS), ("LANE_RAYS", _LANE_RAYS)):
+                       ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8),
+                       ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_SLABS", _LANE_SLABS),
+                       ("LANE_RAYS", _LANE_RAYS)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -803,10 +804,10 @@ def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root:
 # an occluder exists or not, in whatever order the leaves are met). On (d)'s 328k-triangle torus
 # it took 0.83x the time of one ray at a time, 0.75x with the lanes' light points in one quarter
 # of the light (``sampling.sobol_split_index``); with those, (e)'s 1.3k- and 4k-triangle meshes
-# gain a little too (0.95-0.98x a sample with 4 light samples, 1.00x with 1 or 2: docs/benchmarks.md,
-# levers). On the smallest meshes, whose traversals are a few nodes, the lanes' set-up would cost
-# more than it saves, so the renderer takes it for meshes of SHADOW_PACKET_TRIANGLES or more
-# (``MeshTree.record``'s shadow_packets).
+# gain a little too (0.95-0.98x a sample with 4 light samples, 1.00x with 1 or 2:
+# docs/benchmarks.md, levers). On the smallest meshes, whose traversals are a few nodes, the
+# lanes' set-up would cost more than it saves, so the renderer takes it for meshes of
+# SHADOW_PACKET_TRIANGLES or more (``MeshTree.record``'s shadow_packets).
 SHADOW_PACKET_TRIANGLES = 1024
 SHADOW_PACKET_MIN = 4  # the fewest lanes in a mesh's box worth a packet
 _TREE_OCCLUDED_PACKET = _splice(r"""

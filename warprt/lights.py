@@ -335,11 +335,13 @@ def make_lights(F: Features) -> SimpleNamespace:
         """``area_lights_direct`` for the shading points of a camera packet (lanes 0 to ``lanes``
         - 1 whose bit is set in ``live``; their path key is the camera ray's, ROOT_KEY), each
         lane's sum the same as alone, bit for bit: a rectangle's set-up and draws for all lanes
-        at once (``shapes.rect_setup_packet``, ``rect_draw_packet``), then each lane's shadow
-        ray; other emitters, and lanes a rectangle is drawn for by solid angle, one lane at a
-        time. ``skip[k]`` = i + 1 where lane
-        k's point is on a face of mesh instance i with escape horizons, ``face[k]`` that face and
-        side (its shadow rays above them pass that instance: ``trace.occluded_packet``), else 0."""
+        at once (``shapes.rect_setup_packet``, ``rect_draw_packet``; with Sobol and a
+        power-of-two ``samples``, the lanes' s-th draws in one quarter of the light:
+        ``sampling.sobol_split_index``), then the lanes' shadow rays together; other emitters,
+        and lanes a rectangle is drawn for by solid angle, one lane at a time. ``skip[k]`` = i + 1
+        where lane k's point is on a face of mesh instance i with escape horizons, ``face[k]``
+        that face and side (its shadow rays above them pass that instance:
+        ``trace.occluded_packet``), else 0."""
         out = LightPacket()
         glossy = sp.glossy
         ux = PacketF()

@@ -328,32 +328,37 @@ auto scramble = [&](auto i, auto sx, auto sy, auto& x, auto& y) {
     y = owen(reverse_bits(z), sy);
 };
 """
-_SOBOL_PACKET = _SOBOL_FUNCTIONS + r"""
-// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled
-auto point = [&](auto K, auto I, auto& x, auto& y) {
-    const auto key = hash2(K, dim);
-    scramble(owen(I, hash2(key, 0x5B0u)), hash2(key, 0x5B1u), hash2(key, 0x5B2u), x, y);
-};
+# the 8 lanes' points as floats (``u32_to_unit``) from their scrambled integers X, Y: @VECTORS@
+# makes them as clang vectors on the CPU, @LANE@ lane l's elsewhere
+_SOBOL_OUT = r"""
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
 typedef unsigned int u8v __attribute__((ext_vector_type(8)));
 typedef float v8 __attribute__((ext_vector_type(8)));
-u8v K, I, X, Y;
-__builtin_memcpy(&K, &keys, 32);
-__builtin_memcpy(&I, &index, 32);
-point(K, I, X, Y);
-const v8 fx = __builtin_convertvector(X >> 8u, v8) * 5.9604644775390625e-08f;  // u32_to_unit
+u8v X, Y;
+@VECTORS@
+const v8 fx = __builtin_convertvector(X >> 8u, v8) * 5.9604644775390625e-08f;
 const v8 fy = __builtin_convertvector(Y >> 8u, v8) * 5.9604644775390625e-08f;
 __builtin_memcpy(&out_x, &fx, 32);
 __builtin_memcpy(&out_y, &fy, 32);
 #else
 for (int l = 0; l < 8; ++l) {
     unsigned X, Y;
-    point((unsigned)keys[l], (unsigned)index[l], X, Y);
+    @LANE@
     out_x[l] = (float)(X >> 8u) * 5.9604644775390625e-08f;
     out_y[l] = (float)(Y >> 8u) * 5.9604644775390625e-08f;
 }
 #endif
 """
+_SOBOL_PACKET = _SOBOL_FUNCTIONS + r"""
+// sample_2d_keyed's Sobol branch: the shuffled index, then both coordinates scrambled
+auto point = [&](auto K, auto I, auto& x, auto& y) {
+    const auto key = hash2(K, dim);
+    scramble(owen(I, hash2(key, 0x5B0u)), hash2(key, 0x5B1u), hash2(key, 0x5B2u), x, y);
+};
+""" + _SOBOL_OUT.replace("@VECTORS@", """u8v K, I;
+__builtin_memcpy(&K, &keys, 32);
+__builtin_memcpy(&I, &index, 32);
+point(K, I, X, Y);""").replace("@LANE@", "point((unsigned)keys[l], (unsigned)index[l], X, Y);")
 # sobol_split_index for a packet's lanes in two steps: once per light (``sobol_split_setup``) the
 # seeds of x and y and the camera sample's block, ``base``, in a ``SplitDraws`` (rows 0 to 2, a
 # column per lane); then for each draw k (``sobol_split_draw``) its low bits and the point
@@ -393,27 +398,11 @@ auto draw = [&](auto sx, auto sy, auto base, auto& x, auto& y) {
     if (ns >= 4) low = low | ((((((kk >> 1u) & 1u) ^ sy) ^ parity(base | low)) & 1u) << 1u);
     scramble(base | low, sx, sy, x, y);
 };
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef unsigned int u8v __attribute__((ext_vector_type(8)));
-typedef float v8 __attribute__((ext_vector_type(8)));
-u8v SX, SY, B, X, Y;
+""" + _SOBOL_OUT.replace("@VECTORS@", """u8v SX, SY, B;
 __builtin_memcpy(&SX, &state.data[0][0], 32);
 __builtin_memcpy(&SY, &state.data[1][0], 32);
 __builtin_memcpy(&B, &state.data[2][0], 32);
-draw(SX, SY, B, X, Y);
-const v8 fx = __builtin_convertvector(X >> 8u, v8) * 5.9604644775390625e-08f;  // u32_to_unit
-const v8 fy = __builtin_convertvector(Y >> 8u, v8) * 5.9604644775390625e-08f;
-__builtin_memcpy(&out_x, &fx, 32);
-__builtin_memcpy(&out_y, &fy, 32);
-#else
-for (int l = 0; l < 8; ++l) {
-    unsigned X, Y;
-    draw(state.data[0][l], state.data[1][l], state.data[2][l], X, Y);
-    out_x[l] = (float)(X >> 8u) * 5.9604644775390625e-08f;
-    out_y[l] = (float)(Y >> 8u) * 5.9604644775390625e-08f;
-}
-#endif
-"""
+draw(SX, SY, B, X, Y);""").replace("@LANE@", "draw(state.data[0][l], state.data[1][l], state.data[2][l], X, Y);")
 
 
 @wp.func_native(_SOBOL_PACKET)
@@ -435,6 +424,7 @@ def sobol_split_draw(state: SplitDraws, ns: int, k: int, out_x: wp.ref[PacketF],
     """``light_sample_2d(SAMPLER_SOBOL, keys[l], sample[l], ns, k, spp, dim)`` for the 8 lanes l,
     from ``sobol_split_setup``'s ``state`` for those keys, samples, ns and dimension."""
     ...
+
 
 # --- sampling maps -------------------------------------------------------------------------------
 

@@ -363,7 +363,8 @@ def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
 # per packet and light, then each of its draws (``rect_draw_packet``) takes a 2D sample per lane.
 # Lanes the rectangle is drawn for by solid angle (near it, square edges: the spherical
 # rectangle) come back flagged for the scalar draw, as every lane does on CUDA.
-RectKnots = wp.types.matrix(shape=(10, 8), dtype=wp.float32)  # the 9 knots (row i, column j: 3i + j), their sum
+# the set-up's knots for 8 lanes: row 3i + j the knot at (i/2, j/2) of the warp's grid, row 9 their sum
+RectKnots = wp.types.matrix(shape=(10, 8), dtype=wp.float32)
 
 _RECT_PACKET_HEAD = r"""
 typedef float v8 __attribute__((ext_vector_type(8)));
