@@ -1474,8 +1474,8 @@ def _outside_segments(v, tri, outward):
 
 @pytest.mark.parametrize("name", list(_CONE_SHARE))
 def test_shadow_packets_give_each_lane_its_own_answer(name):
-    """``accel.mesh_tree_occluded_packet`` (up to 8 shadow rays through the tree copy together, a
-    lane retired at its first occluder) answers every lane as ``mesh_tree_occluded`` answers it
+    """``accel.mesh_tree_occluded_packet`` (up to 8 shadow rays through the tree copy's wide form
+    together, a lane retired at its first occluder) answers every lane as ``mesh_tree_occluded`` answers it
     alone, with the normal cones and without, for full packets and random lane masks (lanes
     outside the mask answer 0), on the cone test's segments: between outside points, and from
     spawned face points in packets of neighbouring faces' rays (as a camera packet's shading
@@ -1494,10 +1494,10 @@ def test_shadow_packets_give_each_lane_its_own_answer(name):
     idx = shuffled[:m]
     masks = rng.integers(1, 256, m // 8)
     masks[::3] = 255
-    cn = wp.array(cones.reshape(-1), dtype=wp.float32, device="cpu")
+    cn = wp.array(tree.wide_rows(cones.reshape(-1, 4)).reshape(-1), dtype=wp.float32, device="cpu")
 
     @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
-    def k_lanes(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, cones: wp.uint64,
+    def k_lanes(wide: wp.uint64, tris: wp.uint64, cones: wp.uint64,
                 o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3), t_max: wp.array(dtype=float),
                 masks: wp.array(dtype=int), out: wp.array(dtype=wp.vec2i)):
         i = wp.tid()
@@ -1516,8 +1516,8 @@ def test_shadow_packets_give_each_lane_its_own_answer(name):
             dy[k] = d[8 * i + k][1]
             dz[k] = d[8 * i + k][2]
             tm[k] = t_max[8 * i + k]
-        a = accel.mesh_tree_occluded_packet(nodes, kids, tris, root, cones, ox, oy, oz, dx, dy, dz, tm, masks[i])
-        b = accel.mesh_tree_occluded_packet(nodes, kids, tris, root, wp.uint64(0), ox, oy, oz, dx, dy, dz, tm, masks[i])
+        a = accel.mesh_tree_occluded_packet(wide, tris, cones, ox, oy, oz, dx, dy, dz, tm, masks[i])
+        b = accel.mesh_tree_occluded_packet(wide, tris, wp.uint64(0), ox, oy, oz, dx, dy, dz, tm, masks[i])
         for k in range(8):
             out[8 * i + k] = wp.vec2i((a >> k) & 1, (b >> k) & 1)
             if a < 0 or b < 0:
@@ -1536,8 +1536,8 @@ def test_shadow_packets_give_each_lane_its_own_answer(name):
     args = [tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root]
     lanes = wp.zeros(m, dtype=wp.vec2i, device="cpu")
     alone = wp.zeros(m, dtype=int, device="cpu")
-    wp.launch(k_lanes, dim=m // 8, device="cpu",
-              inputs=args + [cn.ptr] + arrays + [wp.array(masks.astype(np.int32), dtype=int, device="cpu"), lanes])
+    wp.launch(k_lanes, dim=m // 8, device="cpu", inputs=[tree.wide.ptr, tree.tris.ptr, cn.ptr] + arrays
+              + [wp.array(masks.astype(np.int32), dtype=int, device="cpu"), lanes])
     wp.launch(k_alone, dim=m, device="cpu", inputs=args + arrays + [alone])
     with_cones, without = lanes.numpy().T
     want = alone.numpy()
@@ -1565,3 +1565,49 @@ def test_normal_cones_need_a_closed_consistently_wound_mesh():
             assert accel.normal_cones(tree, v, flipped) is None
             tree.usable = False
             assert accel.normal_cones(tree, v, f) is None
+
+
+def _wide_tree_checks(tree, n_faces):
+    """The wide tree (``accel.widen``) of ``tree`` is a tree over the same leaves: node 0 the root,
+    every other node and every leaf a child exactly once, each child's box holding its subtree's
+    triangles, 2 to 4 children a node and fewer than 4 only where all are leaves."""
+    w = tree.wide.numpy().reshape(-1, 32)
+    kids = np.ascontiguousarray(w[:, 24:28]).view(np.int32)
+    lo = w[:, :12].reshape(-1, 3, 4).transpose(0, 2, 1)
+    hi = w[:, 12:24].reshape(-1, 3, 4).transpose(0, 2, 1)
+    full = kids != accel.WIDE_EMPTY
+    inner = full & (kids >= 0)
+    assert (full.sum(1) >= 2).all()
+    assert (full.all(1) | ~inner.any(1)).all()  # a node with an empty slot has only leaves
+    np.testing.assert_array_equal(np.sort(kids[inner]), np.arange(1, len(w)))
+    np.testing.assert_array_equal(np.sort(-kids[full & (kids < 0)] - 1), np.arange(n_faces))
+    assert (kids[inner] > np.nonzero(inner)[0]).all()  # (level by level: children come after)
+    corners = tree.tris.numpy().reshape(-1, 3, 3)
+    sub_lo, sub_hi = np.zeros((len(w), 3), np.float32), np.zeros((len(w), 3), np.float32)
+    for n in range(len(w) - 1, -1, -1):  # children first
+        k = kids[n][full[n]]
+        c_lo = np.where((k < 0)[:, None], corners[np.where(k < 0, -k - 1, 0)].min(1), sub_lo[np.maximum(k, 0)])
+        c_hi = np.where((k < 0)[:, None], corners[np.where(k < 0, -k - 1, 0)].max(1), sub_hi[np.maximum(k, 0)])
+        assert (lo[n][full[n]] <= c_lo).all() and (c_hi <= hi[n][full[n]]).all()
+        sub_lo[n], sub_hi[n] = c_lo.min(0), c_hi.max(0)
+
+
+def test_wide_tree_holds_the_binary_trees_leaves_four_to_a_node():
+    """``accel.MeshTree``'s wide form, which the packets traverse (``mesh_tree_packet``,
+    ``mesh_tree_occluded_packet``), on a triangle soup: a valid tree four to a node wherever there
+    are inner nodes to open; after the points move and the tree is refitted (``refresh``), its
+    boxes hold the moved triangles."""
+    rng = np.random.default_rng(41)
+    n = 3000
+    centres = rng.random((n, 1, 3)) * [4.0, 1.0, 2.0]
+    v = (centres + 0.05 * rng.standard_normal((n, 3, 3))).reshape(-1, 3).astype(np.float32)
+    f = np.arange(3 * n, dtype=np.int32).reshape(n, 3)
+    mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
+    tree = accel.MeshTree(mesh, n)
+    assert tree.usable
+    _wide_tree_checks(tree, n)
+    mesh.points.assign(v * [1.0, 3.0, 1.0] + rng.standard_normal(v.shape).astype(np.float32) * 0.02)
+    mesh.refit()
+    tree.refresh()
+    _wide_tree_checks(tree, n)

@@ -461,6 +461,65 @@ def mesh_tree_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp
         wp.atomic_max(info, 1, n)
 
 
+# The tree copy as a 4-wide tree for the packets (``mesh_tree_packet``, ``mesh_tree_occluded_packet``):
+# each wide node holds up to 4 children, taken from the binary tree by opening, from a binary node's
+# two children on, the internal child of largest surface area until there are 4 (or only leaves);
+# every internal child becomes a wide node of its own, level by level (node 0: the root). A wide
+# node is 32 floats: its children's boxes as rows (lo x, lo y, lo z, hi x, hi y, hi z: 4 each),
+# then the 4 children as int32 (a wide node's index; a leaf: -(its leaf position) - 1, as the
+# binary copy's; WIDE_EMPTY: none), then 4 unused. The boxes are the binary copy's own (so a
+# packet tests the same boxes, a level of nodes at a time), gathered again when the mesh is refitted
+# (``MeshTree.refresh``); the normal cones likewise (16 floats a node: axis x, y, z and threshold rows).
+# A packet visits half the nodes of the binary tree: on (d)'s camera packets through the
+# 328k-triangle torus 16 visits a packet against 32, at 0.78x the time (docs/benchmarks.md, levers).
+WIDE = 4
+WIDE_EMPTY = 0x7FFFFFFF
+WIDE_STACK = 96  # a packet's stacked nodes (3 pushed a visit at most; past them the lanes go alone)
+
+
+def widen(kids: np.ndarray, areas: np.ndarray, root: int) -> tuple[np.ndarray, np.ndarray]:
+    """The 4-wide tree (see above) over the binary copy's children ``kids`` (slots, 2) with their
+    boxes' areas ``areas`` (slots, 2): (children (n, 4) int32, sources (n, 4) int64: 2 × the binary
+    node + the slot each child's box comes from, -1 for none)."""
+    kids = np.asarray(kids, np.int64).reshape(-1, 2)
+    areas = np.asarray(areas, np.float64).reshape(-1, 2)
+    none = np.int64(-(1 << 40))
+    frontier = np.array([root], np.int64)
+    out_kids, out_src = [], []
+    count = 1
+    while frontier.size:
+        rows = np.arange(frontier.size)
+        ref = np.full((frontier.size, WIDE), none)
+        src = np.full((frontier.size, WIDE), -1, np.int64)
+        area = np.full((frontier.size, WIDE), -1.0)
+        ref[:, :2] = kids[frontier]
+        src[:, 0], src[:, 1] = 2 * frontier, 2 * frontier + 1
+        area[:, :2] = areas[frontier]
+        for n in range(2, WIDE):
+            # open each node's largest internal child: its first child in its slot, the second in slot n
+            cand = np.where(ref[:, :n] >= 0, area[:, :n], -1.0)
+            j = cand.argmax(axis=1)
+            ok = cand[rows, j] >= 0.0
+            r, j = rows[ok], j[ok]
+            b = ref[r, j]
+            ref[r, n], src[r, n], area[r, n] = kids[b, 1], 2 * b + 1, areas[b, 1]
+            ref[r, j], src[r, j], area[r, j] = kids[b, 0], 2 * b, areas[b, 0]
+        internal = ref >= 0
+        children = ref[internal]
+        ref[internal] = count + np.arange(children.size)
+        count += children.size
+        out_kids.append(np.where(ref == none, WIDE_EMPTY, ref))
+        out_src.append(src)
+        frontier = children
+    return np.concatenate(out_kids).astype(np.int32), np.concatenate(out_src)
+
+
+def _gather_rows(values: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """``MeshTree.wide_rows`` for the sources ``src`` (``widen``'s); 0 for an empty slot."""
+    g = np.where((src >= 0)[..., None], values[np.maximum(src, 0)], 0.0).astype(np.float32)
+    return g.transpose(0, 2, 1).reshape(len(src), -1)
+
+
 class MeshTree:
     """The CPU copy of a ``wp.Mesh``'s tree (see above); ``refresh`` after the mesh is refitted."""
 
@@ -477,6 +536,9 @@ class MeshTree:
         self.balls: wp.array | None = None  # interior balls (``interior_balls``), set by ``find_balls``
         self.escape: wp.array | None = None  # escape horizons (``escape_horizons``), set by ``find_balls``
         self.cones: wp.array | None = None  # normal cones (``normal_cones``), set by ``find_balls``
+        self.wide: wp.array | None = None  # the 4-wide tree (``widen``) of a usable tree
+        self.wide_cones: wp.array | None = None  # its normal cones
+        self._wide_src: np.ndarray | None = None
         self.refresh()
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
@@ -490,6 +552,13 @@ class MeshTree:
         self.escape = None if h is None else wp.array(h.reshape(-1), dtype=wp.uint32, device=self.mesh.device)
         c = normal_cones(self, points, faces, edges)
         self.cones = None if c is None else wp.array(c.reshape(-1), dtype=wp.float32, device=self.mesh.device)
+        self.wide_cones = None if c is None or self.wide is None else wp.array(
+            self.wide_rows(c.reshape(-1, 4)).reshape(-1), dtype=wp.float32, device=self.mesh.device)
+
+    def wide_rows(self, values: np.ndarray) -> np.ndarray:
+        """Values of the binary copy's children ((2 × slots, k): node i's child c in row 2i + c) in
+        the wide tree's layout: (wide nodes, 4k), each value a row of the node's 4 children."""
+        return _gather_rows(values, self._wide_src)
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
@@ -500,26 +569,40 @@ class MeshTree:
         # (equal centroids); a tree with a larger leaf, or a leaf for a root, is not used:
         # Warp's query serves it
         self.usable = largest_leaf <= 1 and root >= 0
+        if self.usable:
+            boxes = self.nodes.numpy().reshape(-1, 6)
+            if self._wide_src is None:  # (a refit keeps the topology: only the boxes change)
+                ext = np.maximum(boxes[:, 3:] - boxes[:, :3], 0.0)
+                areas = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+                self._wide_kids, self._wide_src = widen(self.kids.numpy(), areas, root)
+            w = np.zeros((len(self._wide_src), 32), np.float32)
+            w[:, :24] = self.wide_rows(boxes)
+            w[:, 24:28] = self._wide_kids.view(np.float32)
+            if self.wide is None:
+                self.wide = wp.array(w.reshape(-1), dtype=wp.float32, device=self.mesh.device)
+            else:
+                self.wide.assign(w.reshape(-1))
 
     def record(self) -> dict:
         """The instance record's fields for this tree."""
         if not self.usable:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
-                    balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr, cones=0,
-                    shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES))
+                    wide=self.wide.ptr, balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr,
+                    cones=0, wide_cones=0, shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES))
 
     def ball_fields(self) -> dict:
         """The instance record's fields for shadow rays from outside the solid: its interior balls
         and normal cones (none where the mesh has none)."""
         cones = 0 if self.cones is None or not self.usable else self.cones.ptr
+        wide_cones = 0 if self.wide_cones is None or not self.usable else self.wide_cones.ptr
         if self.balls is None or not self.usable:
-            return dict(balls=0, n_balls=0, cones=cones)
-        return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4, cones=cones)
+            return dict(balls=0, n_balls=0, cones=cones, wide_cones=wide_cones)
+        return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4, cones=cones, wide_cones=wide_cones)
 
 
-NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, balls=0, n_balls=0, escape=0, cones=0,
-               shadow_packets=0)
+NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, wide=0, balls=0, n_balls=0, escape=0, cones=0,
+               wide_cones=0, shadow_packets=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -598,8 +681,7 @@ _NODE_BOXES = r"""
 
 
 # a packet's lane l: its ray's shear (``_SHEAR``'s, kept per lane in KX..OKZ) from the packet's
-# vectors Ox..Dz; in ``tri_test``, lane l's shear for ``_WOOP``; and the 8 lanes' slab test of
-# child box b (6 floats) from their 1/d (Ix, Iy, Iz): entry tn and exit tf per lane
+# vectors Ox..Dz; and in ``tri_test``, lane l's shear for ``_WOOP``
 _LANE_SHEAR = r"""
         const float dxl = Dx[l], dyl = Dy[l], dzl = Dz[l];
         int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
@@ -624,27 +706,66 @@ _LANE_TRI = r"""
         const int kx = KX[l], ky = KY[l], kz = KZ[l];
         const float Sx = SX[l], Sy = SY[l], Sz = SZ[l], okx = OKX[l], oky = OKY[l], okz = OKZ[l];
 """
-_LANE_SLABS = r"""
-            const float* b = nd + 6 * c;
-            const v8 ax = (b[0] - Ox) * Ix, ay = (b[1] - Oy) * Iy, az = (b[2] - Oz) * Iz;
-            const v8 bx = (b[3] - Ox) * Ix, by = (b[4] - Oy) * Iy, bz = (b[5] - Oz) * Iz;
+
+
+# A wide node's visit for a packet (``widen``'s layout, at W + 32 × node): its children read, their
+# data prefetched (a wide node's two cache lines, a leaf's triangle), and each child's box tested
+# for the 8 lanes with their 1/d (Ix, Iy, Iz) by the scalar traversal's slab test with its margin
+# (entry e[c]: the least over the lanes that meet it; lane bits m[c]; 0 for an empty slot); ``_WIDE_VISIT_CONES`` also drops the lanes whose direction a child's normal cone
+# (rows at CN + 16 × node) shows cannot cross its triangles on the way in. ``_WIDE_ORDER``: the
+# cnt children in ch / ce (their entries) sorted farthest first (insertion; the nearest is last).
+_WIDE_VISIT = r"""
+        const float* nd = W + 32 * node;
+        int kc[4];
+        __builtin_memcpy(kc, nd + 24, 16);
+        for (int c = 0; c < 4; ++c) {
+            const int k = kc[c];
+            if (k >= 0) { if (k != WIDE_EMPTY) { __builtin_prefetch(W + 32 * k); __builtin_prefetch(W + 32 * k + 16); } }
+            else { __builtin_prefetch(TR + 9 * (-k - 1)); __builtin_prefetch(TR + 9 * (-k - 1) + 8); }
+        }
+        float e[4];
+        unsigned m[4];
+        for (int c = 0; c < 4; ++c) {
+            const v8 ax = (nd[c] - Ox) * Ix, ay = (nd[4 + c] - Oy) * Iy, az = (nd[8 + c] - Oz) * Iz;
+            const v8 bx = (nd[12 + c] - Ox) * Ix, by = (nd[16 + c] - Oy) * Iy, bz = (nd[20 + c] - Oz) * Iz;
             const v8 lx = ax < bx ? ax : bx, ly = ay < by ? ay : by, lz = az < bz ? az : bz;
             const v8 gx = ax > bx ? ax : bx, gy = ay > by ? ay : by, gz = az > bz ? az : bz;
             const v8 l0 = lx > ly ? lx : ly, lz0 = lz > 0.0f ? lz : (v8)(0.0f);
             const v8 tn = l0 > lz0 ? l0 : lz0;
             const v8 g0 = gx < gy ? gx : gy;
             const v8 tf = g0 < gz ? g0 : gz;
+            i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
+@CONE@
+            e[c] = least8(h ? tn : (v8)(3.0e38f));  // (entries are >= +0, never NaN)
+            m[c] = kc[c] == WIDE_EMPTY ? 0u : bits8(h);
+        }
+""".replace("WIDE_EMPTY", str(WIDE_EMPTY))
+_WIDE_VISIT_CONES = _WIDE_VISIT.replace("@CONE@\n", r"""
+            if (CN != nullptr) {
+                const float* cc = CN + 16 * node;
+                h = h & ((Ux * cc[c] + Uy * cc[4 + c] + Uz * cc[8 + c]) < cc[12 + c]);
+            }
+""".lstrip("\n"))
+_WIDE_VISIT = _WIDE_VISIT.replace("@CONE@\n", "")
+_WIDE_ORDER = r"""
+            for (int a = 1; a < cnt; ++a) {
+                const int kk = ch[a];
+                const float ee = ce[a];
+                int b = a - 1;
+                while (b >= 0 && ce[b] < ee) { ch[b + 1] = ch[b]; ce[b + 1] = ce[b]; --b; }
+                ch[b + 1] = kk; ce[b + 1] = ee;
+            }
 """
 
 
 def _splice(snippet: str) -> str:
     """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
     ``_PREFETCH``, ``_LEAST8``, ``_BITS8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``,
-    ``_LANE_SLABS``) in place."""
+    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_ORDER``) in place."""
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
                        ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8),
-                       ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_SLABS", _LANE_SLABS),
-                       ("LANE_RAYS", _LANE_RAYS)):
+                       ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_RAYS", _LANE_RAYS),
+                       ("WIDE_VISIT", _WIDE_VISIT), ("WIDE_VISIT_CONES", _WIDE_VISIT_CONES), ("WIDE_ORDER", _WIDE_ORDER)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -812,12 +933,12 @@ SHADOW_PACKET_TRIANGLES = 1024
 SHADOW_PACKET_MIN = 4  # the fewest lanes in a mesh's box worth a packet
 _TREE_OCCLUDED_PACKET = _splice(r"""
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-if (nodes != 0) {
+if (wide != 0) {
 typedef float v8 __attribute__((ext_vector_type(8)));
 typedef int i8 __attribute__((ext_vector_type(8)));
 @LEAST8@
 @BITS8@
-const float* N = (const float*)nodes; const int* C = (const int*)kids; const float* TR = (const float*)tris;
+const float* W = (const float*)wide; const float* TR = (const float*)tris;
 const float* CN = (const float*)cones;
 @LANE_RAYS@
 const v8 Ln = 1.0f / __builtin_elementwise_sqrt(Dx * Dx + Dy * Dy + Dz * Dz);
@@ -840,44 +961,34 @@ auto tri_test = [&](int k, int l) {
         if (!(wp::dot(nn, o - p) * wp::dot(nn, d) >= 0.0f)) blocked |= 1u << l;
     }
 };
-int sn[80];
+int sn[STACK];
 int sp = 0;
-int node = root;
+int node = 0;
 while (true) {
-    const float* nd = N + 12 * node;
-    const int k0 = C[2 * node], k1 = C[2 * node + 1];
-@PREFETCH@
-    float e[2];
-    unsigned m[2];
-    for (int c = 0; c < 2; ++c) {
-@LANE_SLABS@
-        i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
-        if (CN != nullptr) {
-            const float* cc = CN + 8 * node + 4 * c;
-            h = h & ((Ux * cc[0] + Uy * cc[1] + Uz * cc[2]) < cc[3]);
-        }
-        const v8 en = h ? tn : (v8)(3.0e38f);
-        e[c] = least8(en);
-        m[c] = bits8(h);
-    }
+@WIDE_VISIT_CONES@
     bool changed = false;
-    if (m[0] && k0 < 0) { for (unsigned q = m[0]; q; q &= q - 1) tri_test(-k0 - 1, __builtin_ctz(q)); m[0] = 0; changed = true; }
-    if (m[1] && k1 < 0) { for (unsigned q = m[1]; q; q &= q - 1) tri_test(-k1 - 1, __builtin_ctz(q)); m[1] = 0; changed = true; }
+    for (int c = 0; c < 4; ++c) {
+        if (m[c] && kc[c] < 0) {
+            for (unsigned q = m[c]; q; q &= q - 1) tri_test(-kc[c] - 1, __builtin_ctz(q));
+            m[c] = 0; changed = true;
+        }
+    }
     if (changed && (live & blocked)) {
         live &= ~blocked;
         if (!live) break;
         for (int l = 0; l < 8; ++l) if (blocked & (1u << l)) Bv[l] = -1.0f;
     }
-    const bool h0 = m[0] != 0, h1 = m[1] != 0;
-    if (h0 && h1) {
-        if (sp == 80) return -1;
-        const bool first0 = e[0] <= e[1];
-        sn[sp++] = first0 ? k1 : k0;
-        node = first0 ? k0 : k1;
+    int cnt = 0, ch[4];
+    float ce[4];
+    for (int c = 0; c < 4; ++c) if (m[c]) { ch[cnt] = kc[c]; ce[cnt] = e[c]; ++cnt; }
+    if (cnt == 1) { node = ch[0]; continue; }
+    if (cnt > 1) {
+        if (sp + cnt > STACK) return -1;
+@WIDE_ORDER@
+        for (int a = 0; a < cnt - 1; ++a) sn[sp++] = ch[a];
+        node = ch[cnt - 1];
         continue;
     }
-    if (h0) { node = k0; continue; }
-    if (h1) { node = k1; continue; }
     if (sp == 0) break;
     node = sn[--sp];
 }
@@ -886,16 +997,17 @@ return (int)blocked;
 }
 #endif
 return -1;
-""")
+""".replace("STACK", str(WIDE_STACK)))
 
 
 @wp.func_native(_TREE_OCCLUDED_PACKET)
-def mesh_tree_occluded_packet(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, cones: wp.uint64,
+def mesh_tree_occluded_packet(wide: wp.uint64, tris: wp.uint64, cones: wp.uint64,
                               ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF,
                               t_max: PacketF, lanes: int) -> int:
     """The lanes (of the bit mask ``lanes``) whose segment (o, o + t_max·d) a triangle blocks, as
-    ``mesh_tree_occluded`` answers each alone (see above); -1 where this function cannot answer
-    (CUDA, no tree copy, past 80 stacked nodes: the caller asks each lane alone)."""
+    ``mesh_tree_occluded`` answers each alone, through the wide tree ``wide`` (``widen``) with its
+    normal cones ``cones`` (0: none; see above); -1 where this function cannot answer (CUDA, no
+    tree copy, past WIDE_STACK stacked nodes: the caller asks each lane alone)."""
     ...
 
 
@@ -1655,13 +1767,12 @@ def horizon_open(escape: wp.uint64, face: int, side: int) -> int:
 _TREE_PACKET = _splice(r"""
 bool alone = true;
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-if (nodes != 0) {
+if (wide != 0) {
     typedef float v8 __attribute__((ext_vector_type(8)));
     typedef int i8 __attribute__((ext_vector_type(8)));
 @LEAST8@
 @BITS8@
-    const float* N = (const float*)nodes;
-    const int* C = (const int*)kids;
+    const float* W = (const float*)wide;
     const float* TR = (const float*)tris;
 @LANE_RAYS@
     int KX[8], KY[8], KZ[8], bh[8];
@@ -1675,52 +1786,38 @@ if (nodes != 0) {
 @WOOP@
         if (tt >= 0.0f && (tt < bt[l] || (tt == bt[l] && k < bh[l]))) { bt[l] = tt; bu[l] = U * rcp; bv[l] = V * rcp; bh[l] = k; }
     };
-    int sn[80];
-    float st[80];
+    int sn[STACK];
+    float st[STACK];
     int sp = 0;
-    int node = root;
+    int node = 0;
     float far_all = -1.0f;  // the farthest any lane still searches
     for (int l = 0; l < 8; ++l) far_all = bt[l] > far_all ? bt[l] : far_all;
     bool overflow = false;
     while (far_all >= 0.0f) {
-        const float* nd = N + 12 * node;
-        const int k0 = C[2 * node], k1 = C[2 * node + 1];
-@PREFETCH@
-        float e[2];
-        unsigned m[2];
-        for (int c = 0; c < 2; ++c) {
-@LANE_SLABS@
-            const i8 h = (tn <= tf * 1.0000004f) & (tn <= Bv);
-            const v8 en = h ? tn : (v8)(3.0e38f);
-            e[c] = least8(en);  // (entries are >= +0, never NaN)
-            m[c] = bits8(h);
-        }
+@WIDE_VISIT@
         bool changed = false;
-        if (m[0] && k0 < 0) {
-            for (unsigned q = m[0]; q; q &= q - 1) tri_test(-k0 - 1, __builtin_ctz(q));
-            m[0] = 0; changed = true;
-        }
-        if (m[1] && k1 < 0) {
-            for (unsigned q = m[1]; q; q &= q - 1) tri_test(-k1 - 1, __builtin_ctz(q));
-            m[1] = 0; changed = true;
+        for (int c = 0; c < 4; ++c) {
+            if (m[c] && kc[c] < 0) {
+                for (unsigned q = m[c]; q; q &= q - 1) tri_test(-kc[c] - 1, __builtin_ctz(q));
+                m[c] = 0; changed = true;
+            }
         }
         if (changed) {
             __builtin_memcpy(&Bv, bt, 32);
             far_all = -1.0f;
             for (int l = 0; l < 8; ++l) far_all = bt[l] > far_all ? bt[l] : far_all;
         }
-        const bool h0 = m[0] && e[0] <= far_all, h1 = m[1] && e[1] <= far_all;
-        if (h0 && h1) {
-            if (sp == 80) { overflow = true; break; }
-            const bool first0 = e[0] <= e[1];
-            sn[sp] = first0 ? k1 : k0;
-            st[sp] = first0 ? e[1] : e[0];
-            ++sp;
-            node = first0 ? k0 : k1;
+        int cnt = 0, ch[4];
+        float ce[4];
+        for (int c = 0; c < 4; ++c) if (m[c] && e[c] <= far_all) { ch[cnt] = kc[c]; ce[cnt] = e[c]; ++cnt; }
+        if (cnt == 1) { node = ch[0]; continue; }
+        if (cnt > 1) {
+            if (sp + cnt > STACK) { overflow = true; break; }
+@WIDE_ORDER@
+            for (int a = 0; a < cnt - 1; ++a) { sn[sp] = ch[a]; st[sp] = ce[a]; ++sp; }
+            node = ch[cnt - 1];
             continue;
         }
-        if (h0) { node = k0; continue; }
-        if (h1) { node = k1; continue; }
         bool found = false;
         while (sp > 0) {
             --sp;
@@ -1742,11 +1839,11 @@ if (nodes != 0) {
 }
 #endif
 return alone ? 0 : 1;
-""")
+""".replace("STACK", str(WIDE_STACK)))
 
 
 @wp.func_native(_TREE_PACKET)
-def mesh_tree_packet(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int,
+def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64,
                      ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF,
                      t: wp.ref[PacketF], u: wp.ref[PacketF], v: wp.ref[PacketF], face: wp.ref[PacketI]) -> int:
     """Each lane's nearest triangle of mesh ``mid`` in [0, t_max] (t -1 and face -1 for none; see

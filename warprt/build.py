@@ -198,12 +198,12 @@ class DeviceScene:
             regions.append((eyes.min(axis=0) - pad, eyes.max(axis=0) + pad))
         rows = d.insts.numpy()
         for i, tree in enumerate(trees):
-            fields = dict(balls=0, n_balls=0, cones=0)
+            fields = dict(balls=0, n_balls=0, cones=0, wide_cones=0)
             if tree is not None and regions is not None:
                 lo, hi = rows["lo"][i], rows["hi"][i]
                 if not any(np.all(rlo <= hi) and np.all(lo <= rhi) for rlo, rhi in regions):
                     fields = tree.ball_fields()
-            for name in ("balls", "n_balls", "cones"):
+            for name in ("balls", "n_balls", "cones", "wide_cones"):
                 rows[name][i] = fields[name]
             self._balls_given |= fields["n_balls"] > 0 or fields["cones"] != 0
         d.insts.assign(rows)
@@ -229,6 +229,7 @@ class DeviceScene:
             tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
             tree.escape = None  # nor its escape horizons
             tree.cones = None  # nor its normal cones
+            tree.wide_cones = None
             rows = self.data.insts.numpy()
             for i, k in enumerate(self.instance_assets):
                 if k == key:

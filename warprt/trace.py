@@ -595,9 +595,8 @@ def make_trace(F: Features) -> SimpleNamespace:
             qu = PacketF()
             qv = PacketF()
             qf = PacketI()
-            done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].tree_nodes, scene.insts[i].tree_kids,
-                                    scene.insts[i].tree_tris, scene.insts[i].tree_root, ox, oy, oz, dx, dy, dz,
-                                    reach, qt, qu, qv, qf)
+            done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].wide, scene.insts[i].tree_tris, ox, oy, oz,
+                                    dx, dy, dz, reach, qt, qu, qv, qf)
             for k in range(lanes):
                 if reach[k] < 0.0:
                     continue
@@ -1231,8 +1230,8 @@ def make_trace(F: Features) -> SimpleNamespace:
                     pdz[k] = d_obj[2]
         if rest == 0:
             return blocked
-        r = mesh_tree_occluded_packet(inst.tree_nodes, inst.tree_kids, inst.tree_tris, inst.tree_root, inst.cones, pox,
-                                      poy, poz, pdx, pdy, pdz, t_max, rest)
+        r = mesh_tree_occluded_packet(inst.wide, inst.tree_tris, inst.wide_cones, pox, poy, poz, pdx, pdy, pdz, t_max,
+                                      rest)
         if r < 0:
             return -1
         return blocked | r

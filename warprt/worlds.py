@@ -391,6 +391,7 @@ class BatchRenderer:
             if name == "insts":
                 host["n_balls"] = 0  # a world's poses and cameras are its own: no interior balls (build.py)
                 host["cones"] = 0  # nor normal cones
+                host["wide_cones"] = 0
             setattr(self.tables, name, wp.array(np.repeat(host[None], W, axis=0), dtype=base.dtype, device=dev))
             self.counters["host_transfers"] += 2
         self._shape_map = wp.array(np.array(self.built.shape_ids or [(0, 0)], dtype=np.int32), dtype=wp.vec2i,
