@@ -720,7 +720,7 @@ _WIDE_VISIT = r"""
         __builtin_memcpy(kc, nd + 24, 16);
         for (int c = 0; c < 4; ++c) {
             const int k = kc[c];
-            if (k >= 0) { if (k != WIDE_EMPTY) { __builtin_prefetch(W + 32 * k); __builtin_prefetch(W + 32 * k + 16); } }
+            if (k >= 0) { if (k != WIDE_EMPTY) { __builtin_prefetch(W + 32 * k); __builtin_prefetch(W + 32 * k + 16); @CONE_PREFETCH@} }
             else { __builtin_prefetch(TR + 9 * (-k - 1)); __builtin_prefetch(TR + 9 * (-k - 1) + 8); }
         }
         float e[4];
@@ -740,13 +740,13 @@ _WIDE_VISIT = r"""
             m[c] = kc[c] == WIDE_EMPTY ? 0u : bits8(h);
         }
 """.replace("WIDE_EMPTY", str(WIDE_EMPTY))
-_WIDE_VISIT_CONES = _WIDE_VISIT.replace("@CONE@\n", r"""
+_WIDE_VISIT_CONES = _WIDE_VISIT.replace("@CONE_PREFETCH@", "if (CN != nullptr) __builtin_prefetch(CN + 16 * k); ").replace("@CONE@\n", r"""
             if (CN != nullptr) {
                 const float* cc = CN + 16 * node;
                 h = h & ((Ux * cc[c] + Uy * cc[4 + c] + Uz * cc[8 + c]) < cc[12 + c]);
             }
 """.lstrip("\n"))
-_WIDE_VISIT = _WIDE_VISIT.replace("@CONE@\n", "")
+_WIDE_VISIT = _WIDE_VISIT.replace("@CONE_PREFETCH@", "").replace("@CONE@\n", "")
 _WIDE_ORDER = r"""
             for (int a = 1; a < cnt; ++a) {
                 const int kk = ch[a];
