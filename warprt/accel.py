@@ -514,10 +514,21 @@ def widen(kids: np.ndarray, areas: np.ndarray, root: int) -> tuple[np.ndarray, n
     return np.concatenate(out_kids).astype(np.int32), np.concatenate(out_src)
 
 
-def _gather_rows(values: np.ndarray, src: np.ndarray) -> np.ndarray:
-    """``MeshTree.wide_rows`` for the sources ``src`` (``widen``'s); 0 for an empty slot."""
-    g = np.where((src >= 0)[..., None], values[np.maximum(src, 0)], 0.0).astype(np.float32)
-    return g.transpose(0, 2, 1).reshape(len(src), -1)
+@wp.kernel(module="warprt_accel", enable_backward=False)
+def wide_boxes_kernel(boxes: wp.array(dtype=wp.float32), src: wp.array(dtype=wp.int32),
+                      wide: wp.array(dtype=wp.float32)):
+    """Child slot i of the wide tree (node i // 4, slot i % 4): its box from the binary copy's
+    child src[i] (``widen``; 6 floats each in ``boxes``) into the node's rows of 4 (none for an
+    empty slot). Run after every build and refit: 11 ms on the host for 328k triangles (numpy's
+    gather: 47 ms)."""
+    i = wp.tid()
+    s = src[i]
+    if s < 0:
+        return
+    n = i // 4
+    c = i - 4 * n
+    for k in range(6):
+        wide[32 * n + 4 * k + c] = boxes[6 * s + k]
 
 
 class MeshTree:
@@ -538,7 +549,8 @@ class MeshTree:
         self.cones: wp.array | None = None  # normal cones (``normal_cones``), set by ``find_balls``
         self.wide: wp.array | None = None  # the 4-wide tree (``widen``) of a usable tree
         self.wide_cones: wp.array | None = None  # its normal cones
-        self._wide_src: np.ndarray | None = None
+        self._wide_src: np.ndarray | None = None  # (``widen``'s sources, and as a Warp array)
+        self._wide_src_dev: wp.array | None = None
         self.refresh()
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
@@ -558,7 +570,9 @@ class MeshTree:
     def wide_rows(self, values: np.ndarray) -> np.ndarray:
         """Values of the binary copy's children ((2 × slots, k): node i's child c in row 2i + c) in
         the wide tree's layout: (wide nodes, 4k), each value a row of the node's 4 children."""
-        return _gather_rows(values, self._wide_src)
+        src = self._wide_src
+        g = np.where((src >= 0)[..., None], values[np.maximum(src, 0)], 0.0).astype(np.float32)
+        return g.transpose(0, 2, 1).reshape(len(src), -1)
 
     def refresh(self) -> None:
         wp.launch(mesh_tree_kernel, dim=self.slots, device=self.mesh.device,
@@ -570,18 +584,18 @@ class MeshTree:
         # Warp's query serves it
         self.usable = largest_leaf <= 1 and root >= 0
         if self.usable:
-            boxes = self.nodes.numpy().reshape(-1, 6)
-            if self._wide_src is None:  # (a refit keeps the topology: only the boxes change)
+            if self.wide is None:  # (a refit keeps the topology: only the boxes change)
+                boxes = self.nodes.numpy().reshape(-1, 6)
                 ext = np.maximum(boxes[:, 3:] - boxes[:, :3], 0.0)
                 areas = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
-                self._wide_kids, self._wide_src = widen(self.kids.numpy(), areas, root)
-            w = np.zeros((len(self._wide_src), 32), np.float32)
-            w[:, :24] = self.wide_rows(boxes)
-            w[:, 24:28] = self._wide_kids.view(np.float32)
-            if self.wide is None:
+                kids, self._wide_src = widen(self.kids.numpy(), areas, root)
+                w = np.zeros((len(kids), 32), np.float32)
+                w[:, 24:28] = kids.view(np.float32)
                 self.wide = wp.array(w.reshape(-1), dtype=wp.float32, device=self.mesh.device)
-            else:
-                self.wide.assign(w.reshape(-1))
+                self._wide_src_dev = wp.array(self._wide_src.reshape(-1).astype(np.int32), dtype=wp.int32,
+                                              device=self.mesh.device)
+            src, dev = self._wide_src_dev, self.mesh.device
+            wp.launch(wide_boxes_kernel, dim=src.shape[0], device=dev, inputs=[self.nodes, src, self.wide])
 
     def record(self) -> dict:
         """The instance record's fields for this tree."""
