@@ -468,10 +468,12 @@ def mesh_tree_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp
 # node is 32 floats: its children's boxes as rows (lo x, lo y, lo z, hi x, hi y, hi z: 4 each),
 # then the 4 children as int32 (a wide node's index; a leaf: -(its leaf position) - 1, as the
 # binary copy's; WIDE_EMPTY: none), then 4 unused. The boxes are the binary copy's own (so a
-# packet tests the same boxes, a level of nodes at a time), gathered again when the mesh is refitted
-# (``MeshTree.refresh``); the normal cones likewise (16 floats a node: axis x, y, z and threshold rows).
+# packet tests the same boxes, a level of nodes at a time), gathered by ``wide_boxes_kernel`` after
+# every build and refit (``MeshTree.refresh``); a mesh's normal cones, where it has them, are laid
+# out the same way (``MeshTree.wide_rows``: 16 floats a node, rows of axis x, y, z and threshold).
 # A packet visits half the nodes of the binary tree: on (d)'s camera packets through the
-# 328k-triangle torus 16 visits a packet against 32, at 0.78x the time (docs/benchmarks.md, levers).
+# 328k-triangle torus 16 visits a packet against 32, at 0.78x the time (docs/benchmarks.md,
+# levers); the collapse takes 0.05 s on the host for those 328k triangles.
 WIDE = 4
 WIDE_EMPTY = 0x7FFFFFFF
 WIDE_STACK = 96  # a packet's stacked nodes (3 pushed a visit at most; past them the lanes go alone)
@@ -532,7 +534,8 @@ def wide_boxes_kernel(boxes: wp.array(dtype=wp.float32), src: wp.array(dtype=wp.
 
 
 class MeshTree:
-    """The CPU copy of a ``wp.Mesh``'s tree (see above); ``refresh`` after the mesh is refitted."""
+    """The CPU copy of a ``wp.Mesh``'s tree and its wide form (see above); ``refresh`` after the
+    mesh is refitted."""
 
     def __init__(self, mesh: "wp.Mesh", n_faces: int):
         dev = mesh.device
@@ -725,17 +728,23 @@ _LANE_TRI = r"""
 # A wide node's visit for a packet (``widen``'s layout, at W + 32 × node): its children read, their
 # data prefetched (a wide node's two cache lines, a leaf's triangle), and each child's box tested
 # for the 8 lanes with their 1/d (Ix, Iy, Iz) by the scalar traversal's slab test with its margin
-# (entry e[c]: the least over the lanes that meet it; lane bits m[c]; 0 for an empty slot); ``_WIDE_VISIT_CONES`` also drops the lanes whose direction a child's normal cone
-# (rows at CN + 16 × node) shows cannot cross its triangles on the way in. ``_WIDE_ORDER``: the
-# cnt children in ch / ce (their entries) sorted farthest first (insertion; the nearest is last).
+# (entry e[c]: the least over the lanes that meet it; lane bits m[c]; 0 for an empty slot).
+# ``_WIDE_VISIT_CONES`` also prefetches an inner child's normal cones (rows at CN + 16 × node) and
+# drops the lanes whose direction a child's cone shows cannot cross its triangles on the way in.
+# ``_WIDE_ORDER``: the cnt children in ch / ce (their entries) sorted farthest first (insertion;
+# the nearest is last).
 _WIDE_VISIT = r"""
         const float* nd = W + 32 * node;
         int kc[4];
         __builtin_memcpy(kc, nd + 24, 16);
         for (int c = 0; c < 4; ++c) {
             const int k = kc[c];
-            if (k >= 0) { if (k != WIDE_EMPTY) { __builtin_prefetch(W + 32 * k); __builtin_prefetch(W + 32 * k + 16); @CONE_PREFETCH@} }
-            else { __builtin_prefetch(TR + 9 * (-k - 1)); __builtin_prefetch(TR + 9 * (-k - 1) + 8); }
+            if (k >= 0) {
+                if (k != WIDE_EMPTY) {
+                    __builtin_prefetch(W + 32 * k); __builtin_prefetch(W + 32 * k + 16);
+@CONE_PREFETCH@
+                }
+            } else { __builtin_prefetch(TR + 9 * (-k - 1)); __builtin_prefetch(TR + 9 * (-k - 1) + 8); }
         }
         float e[4];
         unsigned m[4];
@@ -754,13 +763,15 @@ _WIDE_VISIT = r"""
             m[c] = kc[c] == WIDE_EMPTY ? 0u : bits8(h);
         }
 """.replace("WIDE_EMPTY", str(WIDE_EMPTY))
-_WIDE_VISIT_CONES = _WIDE_VISIT.replace("@CONE_PREFETCH@", "if (CN != nullptr) __builtin_prefetch(CN + 16 * k); ").replace("@CONE@\n", r"""
+_WIDE_VISIT_CONES = _WIDE_VISIT.replace("@CONE_PREFETCH@",
+                                        "                    if (CN != nullptr) __builtin_prefetch(CN + 16 * k);")
+_WIDE_VISIT_CONES = _WIDE_VISIT_CONES.replace("@CONE@\n", r"""
             if (CN != nullptr) {
                 const float* cc = CN + 16 * node;
                 h = h & ((Ux * cc[c] + Uy * cc[4 + c] + Uz * cc[8 + c]) < cc[12 + c]);
             }
 """.lstrip("\n"))
-_WIDE_VISIT = _WIDE_VISIT.replace("@CONE_PREFETCH@", "").replace("@CONE@\n", "")
+_WIDE_VISIT = _WIDE_VISIT.replace("@CONE_PREFETCH@\n", "").replace("@CONE@\n", "")
 _WIDE_ORDER = r"""
             for (int a = 1; a < cnt; ++a) {
                 const int kk = ch[a];
@@ -779,7 +790,8 @@ def _splice(snippet: str) -> str:
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
                        ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8),
                        ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_RAYS", _LANE_RAYS),
-                       ("WIDE_VISIT", _WIDE_VISIT), ("WIDE_VISIT_CONES", _WIDE_VISIT_CONES), ("WIDE_ORDER", _WIDE_ORDER)):
+                       ("WIDE_VISIT", _WIDE_VISIT), ("WIDE_VISIT_CONES", _WIDE_VISIT_CONES),
+                       ("WIDE_ORDER", _WIDE_ORDER)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
