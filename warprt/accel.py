@@ -731,8 +731,9 @@ _LANE_TRI = r"""
 # (entry e[c]: the least over the lanes that meet it; lane bits m[c]; 0 for an empty slot).
 # ``_WIDE_VISIT_CONES`` also prefetches an inner child's normal cones (rows at CN + 16 × node) and
 # drops the lanes whose direction a child's cone shows cannot cross its triangles on the way in.
-# ``_WIDE_ORDER``: the cnt children in ch / ce (their entries) sorted farthest first (insertion;
-# the nearest is last).
+# ``_WIDE_LEAVES``: each leaf child's triangle tested (``tri_test``) for the lanes that meet its
+# box, its bits then cleared (``changed``: a leaf was tested). ``_WIDE_ORDER``: the cnt children
+# in ch / ce (their entries) sorted farthest first (insertion; the nearest is last).
 _WIDE_VISIT = r"""
         const float* nd = W + 32 * node;
         int kc[4];
@@ -772,6 +773,15 @@ _WIDE_VISIT_CONES = _WIDE_VISIT_CONES.replace("@CONE@\n", r"""
             }
 """.lstrip("\n"))
 _WIDE_VISIT = _WIDE_VISIT.replace("@CONE_PREFETCH@\n", "").replace("@CONE@\n", "")
+_WIDE_LEAVES = r"""
+        bool changed = false;
+        for (int c = 0; c < 4; ++c) {
+            if (m[c] && kc[c] < 0) {
+                for (unsigned q = m[c]; q; q &= q - 1) tri_test(-kc[c] - 1, __builtin_ctz(q));
+                m[c] = 0; changed = true;
+            }
+        }
+"""
 _WIDE_ORDER = r"""
             for (int a = 1; a < cnt; ++a) {
                 const int kk = ch[a];
@@ -786,12 +796,12 @@ _WIDE_ORDER = r"""
 def _splice(snippet: str) -> str:
     """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
     ``_PREFETCH``, ``_LEAST8``, ``_BITS8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``,
-    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_ORDER``) in place."""
+    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_LEAVES``, ``_WIDE_ORDER``) in place."""
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
                        ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8),
                        ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_RAYS", _LANE_RAYS),
                        ("WIDE_VISIT", _WIDE_VISIT), ("WIDE_VISIT_CONES", _WIDE_VISIT_CONES),
-                       ("WIDE_ORDER", _WIDE_ORDER)):
+                       ("WIDE_LEAVES", _WIDE_LEAVES), ("WIDE_ORDER", _WIDE_ORDER)):
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -992,13 +1002,7 @@ int sp = 0;
 int node = 0;
 while (true) {
 @WIDE_VISIT_CONES@
-    bool changed = false;
-    for (int c = 0; c < 4; ++c) {
-        if (m[c] && kc[c] < 0) {
-            for (unsigned q = m[c]; q; q &= q - 1) tri_test(-kc[c] - 1, __builtin_ctz(q));
-            m[c] = 0; changed = true;
-        }
-    }
+@WIDE_LEAVES@
     if (changed && (live & blocked)) {
         live &= ~blocked;
         if (!live) break;
@@ -1826,13 +1830,7 @@ if (wide != 0) {
     bool overflow = false;
     while (far_all >= 0.0f) {
 @WIDE_VISIT@
-        bool changed = false;
-        for (int c = 0; c < 4; ++c) {
-            if (m[c] && kc[c] < 0) {
-                for (unsigned q = m[c]; q; q &= q - 1) tri_test(-kc[c] - 1, __builtin_ctz(q));
-                m[c] = 0; changed = true;
-            }
-        }
+@WIDE_LEAVES@
         if (changed) {
             __builtin_memcpy(&Bv, bt, 32);
             far_all = -1.0f;
