@@ -552,8 +552,7 @@ class MeshTree:
         self.cones: wp.array | None = None  # normal cones (``normal_cones``), set by ``find_balls``
         self.wide: wp.array | None = None  # the 4-wide tree (``widen``) of a usable tree
         self.wide_cones: wp.array | None = None  # its normal cones
-        self._wide_src: np.ndarray | None = None  # (``widen``'s sources, and as a Warp array)
-        self._wide_src_dev: wp.array | None = None
+        self._wide_src: wp.array | None = None  # ``widen``'s sources, one a child slot
         self.refresh()
 
     def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
@@ -573,7 +572,7 @@ class MeshTree:
     def wide_rows(self, values: np.ndarray) -> np.ndarray:
         """Values of the binary copy's children ((2 × slots, k): node i's child c in row 2i + c) in
         the wide tree's layout: (wide nodes, 4k), each value a row of the node's 4 children."""
-        src = self._wide_src
+        src = self._wide_src.numpy().reshape(-1, WIDE)
         g = np.where((src >= 0)[..., None], values[np.maximum(src, 0)], 0.0).astype(np.float32)
         return g.transpose(0, 2, 1).reshape(len(src), -1)
 
@@ -591,13 +590,12 @@ class MeshTree:
                 boxes = self.nodes.numpy().reshape(-1, 6)
                 ext = np.maximum(boxes[:, 3:] - boxes[:, :3], 0.0)
                 areas = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
-                kids, self._wide_src = widen(self.kids.numpy(), areas, root)
+                kids, src = widen(self.kids.numpy(), areas, root)
                 w = np.zeros((len(kids), 32), np.float32)
                 w[:, 24:28] = kids.view(np.float32)
                 self.wide = wp.array(w.reshape(-1), dtype=wp.float32, device=self.mesh.device)
-                self._wide_src_dev = wp.array(self._wide_src.reshape(-1).astype(np.int32), dtype=wp.int32,
-                                              device=self.mesh.device)
-            src, dev = self._wide_src_dev, self.mesh.device
+                self._wide_src = wp.array(src.reshape(-1).astype(np.int32), dtype=wp.int32, device=self.mesh.device)
+            src, dev = self._wide_src, self.mesh.device
             wp.launch(wide_boxes_kernel, dim=src.shape[0], device=dev, inputs=[self.nodes, src, self.wide])
 
     def record(self) -> dict:
