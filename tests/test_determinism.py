@@ -56,6 +56,27 @@ def test_bit_identical_for_any_workers_slices_and_passes(renderer, options):
     assert base.rays == other.rays  # the same rays were traced, not just the same sums
 
 
+def test_every_row_rendered_for_any_slices():
+    # fresh renderers (a reused film would hide rows a slicing leaves out: they keep the last sums)
+    a = warprt.Renderer(glass_scene(), device="cpu").render(spp=2, seed=5, workers=1, slices=1, progress=False)
+    for slices in (3, 7):
+        b = warprt.Renderer(glass_scene(), device="cpu").render(spp=2, seed=5, workers=2, slices=slices,
+                                                               progress=False)
+        assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
+
+
+def test_slices_cover_every_row_once():
+    # each slice's k-th row as the render kernels place it: blocks of consecutive rows
+    from warprt.render import _slices
+    for height in range(1, 70):
+        for count in range(1, 13):
+            rows = []
+            for row0, stride, block, pixels in _slices(3, height, count):
+                assert pixels % 3 == 0 and 1 <= block
+                rows += [row0 + (k // block) * stride + k % block for k in range(pixels // 3)]
+            assert sorted(rows) == list(range(height)), (height, count)
+
+
 def test_same_seed_twice_is_identical_across_renderers(device):
     a = warprt.Renderer(glass_scene(), device=device).render(spp=8, seed=11, progress=False).image
     b = warprt.Renderer(glass_scene(), device=device).render(spp=8, seed=11, progress=False).image

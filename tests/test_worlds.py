@@ -148,6 +148,11 @@ def test_batches_are_bit_identical_for_any_thread_or_slice_count_and_worlds_are_
     a = br.render(spp=3, seed=5, workers=1, slices=1).numpy()
     b = br.render(spp=3, seed=5, workers=2, slices=7).numpy()
     assert np.array_equal(a, b)
+    # a fresh batch, a slice per row (a reused film would hide rows a slicing leaves out: they keep
+    # the last sums)
+    fresh = BatchRenderer(scene, worlds=W, cameras=C, device="cpu")
+    fresh.set_shape_poses(poses)
+    assert np.array_equal(fresh.render(spp=3, seed=5, workers=2, slices=W * C * fresh.height).numpy(), a)
     poses2 = poses.copy()
     poses2[1, 1, :3] += [0.3, 0.0, 0.0]  # world 1's sphere moves
     br.set_shape_poses(poses2)

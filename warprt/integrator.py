@@ -677,12 +677,14 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
 
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
-                      row0: int, stride: int, s0: int, s1: int, film: FilmData, run: int):
-        # this launch's pixels: rows row0, row0 + stride, ... (an interleaved slice of the frame),
-        # ``run`` consecutive pixels of one row per thread (``run`` divides the width: a CPU task
-        # takes a whole row, so the launch's arguments are copied once per row, not per pixel)
+                      row0: int, stride: int, s0: int, s1: int, film: FilmData, run: int, block: int):
+        # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
+        # ... (an interleaved slice of the frame, render._slices), ``run`` consecutive pixels of
+        # one row per thread (``run`` divides the width: a CPU task takes a whole row, so the
+        # launch's arguments are copied once per row, not per pixel)
         k0 = wp.tid() * run
-        py = row0 + (k0 / cam.width) * stride
+        k = k0 / cam.width
+        py = row0 + (k / block) * stride + k % block
         if py >= cam.height:
             return
         px0 = k0 % cam.width

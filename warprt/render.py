@@ -1,10 +1,12 @@
 """Render a scene: build it on a device, pick its kernel, run passes over the frame, return the image.
 
 Parallelism: a Warp launch on the CPU runs on one core, so each pass is cut into ``slices``
-interleaved sets of rows (slice j holds rows j, j + S, j + 2S, ... of the frame),
-launched from a pool of worker threads (one per core, kept by the renderer) that take slices
-from a shared queue. Interleaving gives every slice the same mix of cheap and expensive pixels,
-so a few launches per pass balance the cores; each launch is recorded once per render and
+interleaved sets of row blocks (slice j holds blocks j, j + S, j + 2S, ... of SLICE_BLOCK
+consecutive rows), launched from a pool of worker threads (one per core, kept by the renderer)
+that take slices from a shared queue. Interleaving gives every slice the same mix of cheap and
+expensive pixels, so a few launches per pass balance the cores, and the rows of a block, taken
+in turn by one thread, find in the caches the tree nodes and triangles the row above brought
+there; each launch is recorded once per render and
 replayed with new sample bounds, so a pass costs a few microseconds of Python. On CUDA each pass
 is one launch over the whole frame. A thread owns a pixel for the whole pass and adds its
 samples in order, and every random number depends only on (seed, pixel, sample, dimension): the
@@ -88,6 +90,9 @@ PARAMS_ARG = 2  # position of the render's parameters (RenderParams)
 ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
 SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
+# consecutive rows a slice takes at a time: on (d) (4 spp, 4 light samples, 1 worker) rows 4 apart
+# cost 1.06x the CPU time of consecutive ones, rows 2 apart 1.025x (docs/benchmarks.md, levers)
+SLICE_BLOCK = 4
 
 
 def pixels_per_thread(device, width: int) -> int:
@@ -98,10 +103,20 @@ def pixels_per_thread(device, width: int) -> int:
     return width if device.is_cpu else 1
 
 
-def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int]]:
-    """(first row, row stride, pixels) of each of ``count`` interleaved slices of the frame."""
+def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
+    """(first row, stride, block, pixels) of each of ``count`` interleaved slices of the frame:
+    slice j holds blocks j, j + count, ... of ``block`` consecutive rows (SLICE_BLOCK, fewer
+    where the frame has too few rows for a block per slice), its first rows ``stride`` rows apart
+    (the render kernels' ``row0``, ``stride``, ``block``)."""
     count = max(1, min(count, height))
-    return [(j, count, width * ((height - j + count - 1) // count)) for j in range(count)]
+    block = max(1, min(SLICE_BLOCK, height // count))
+    n_blocks = -(-height // block)
+    count = min(count, n_blocks)
+    out = []
+    for j in range(count):
+        rows = sum(min(block, height - b * block) for b in range(j, n_blocks, count))
+        out.append((j * block, count * block, block, width * rows))
+    return out
 
 
 def run_pass(pool: ThreadPoolExecutor, launches: list, workers: int, s0: int, s1: int) -> None:
@@ -300,7 +315,7 @@ class Renderer:
                 pilots.append((film, [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run,
                                                 device=self.device, record_cmd=True,
                                                 inputs=[self.built.data, self.built.camera, params, rows[j],
-                                                        step * count, 0, 0, film.data, run])
+                                                        step * count, 0, 0, film.data, run, 1])
                                       for j in range(count)]))
             errors = []
             for n in (1, splitting.PROBE):
@@ -328,7 +343,7 @@ class Renderer:
         film = Film(1, 1, dev)
         wp.launch(self.kernel, dim=1, device=dev,
                   inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features),
-                          0, 1, 0, 0, film.data, 1])
+                          0, 1, 0, 0, film.data, 1, 1])
         wp.synchronize_device(dev)
         return _time.perf_counter() - start
 
@@ -483,8 +498,8 @@ class Renderer:
             run = pixels_per_thread(dev, cam.width)
             launches = [wp.launch(self.kernel, dim=count // run, device=dev, record_cmd=True,
                                   inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0, film.data,
-                                          run])
-                        for first, stride, count in _slices(cam.width, cam.height, n_slices)]
+                                          run, block])
+                        for first, stride, block, count in _slices(cam.width, cam.height, n_slices)]
             if film is self._film:  # (a film of a render in another thread is not kept)
                 self._launches = (key, launches)
         pool = self._pool.get(workers)

@@ -255,12 +255,15 @@ def batch_kernel_for(F: Features, packets: bool):
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
                      row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
-                     n_cams: int, height: int, width: int, run: int, inv_spp: float, color: wp.array(dtype=wp.vec3)):
-        # this launch's pixels: rows row0, row0 + stride, ... of the tall image (W·C·H rows), ``run``
-        # consecutive pixels of one row per thread (``run`` divides the width); a batch renders all
-        # its samples in one pass, so each pixel's colour is written here too
+                     n_cams: int, height: int, width: int, run: int, inv_spp: float, color: wp.array(dtype=wp.vec3),
+                     block: int):
+        # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
+        # ... of the tall image (W·C·H rows; render._slices), ``run`` consecutive pixels of one row
+        # per thread (``run`` divides the width); a batch renders all its samples in one pass, so
+        # each pixel's colour is written here too
         k0 = wp.tid() * run
-        gy = row0 + (k0 / width) * stride
+        k = k0 / width
+        gy = row0 + (k / block) * stride + k % block
         image = gy / height
         if image >= cams.shape[0]:
             return
@@ -547,7 +550,7 @@ class BatchRenderer:
         params = render_params(self.scene, spp, int(seed), self.features)
         run = pixels_per_thread(dev, self.width)
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
-                  self.height, self.width, run, 1.0 / float(spp), self._color]
+                  self.height, self.width, run, 1.0 / float(spp), self._color, 1]
         if not self._loaded:  # load the modules from this thread (workers must not race to build them)
             self._update_tables()
             wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
@@ -560,9 +563,9 @@ class BatchRenderer:
             wp.launch(refit_kernel, dim=self.worlds, device=dev,
                       inputs=[self.bvh, self._lowers, self._uppers, self._per_world - 1])
         launches = []  # (every pixel starts its film sums at sample 0: no zeroing)
-        for first, stride, count in _slices(self.width, rows, n_slices):
+        for first, stride, block, count in _slices(self.width, rows, n_slices):
             args = list(inputs)
-            args[3], args[4] = first, stride
+            args[3], args[4], args[-1] = first, stride, block
             launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
         shape = (self.worlds, self.cameras, self.height, self.width)
