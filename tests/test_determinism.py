@@ -65,6 +65,32 @@ def test_every_row_rendered_for_any_slices():
         assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
 
 
+def mesh_scene() -> warprt.Scene:
+    """A mesh over a plane, 10 rows: two blocks of 4 rows and one of 2 (render._slices)."""
+    import trimesh
+    ico = trimesh.creation.icosphere(subdivisions=2, radius=0.6)
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0.3, 1.2, 3.0), look_at=(0.0, 0.5, 0.0), fov=40, width=14, height=10),
+        shapes=(warprt.Plane(point=(0, 0, 0), normal=(0, 1, 0), material="ground"),
+                warprt.Mesh(vertices=np.asarray(ico.vertices) + [0.0, 0.6, 0.0], faces=np.asarray(ico.faces),
+                            material="ball")),
+        materials={"ground": warprt.Material(kd=0.6), "ball": warprt.Material(kd=(0.8, 0.4, 0.3), ks=0.3)},
+        lights=(warprt.PointLight(position=(2.0, 4.0, 2.0), intensity=20.0),),
+        render=warprt.RenderSettings(sampler="sobol", spp=3))
+
+
+def test_mesh_kernels_blocks_column_by_column_equal_row_by_row():
+    # with meshes a CPU thread takes a block of 4 rows column by column (packets over several
+    # pixels cover patches); one-row blocks (a slice a row) go row by row
+    rows = warprt.Renderer(mesh_scene(), device="cpu")
+    assert rows.features.meshes
+    a = rows.render(spp=3, seed=4, workers=1, slices=10, progress=False)
+    for options in (dict(workers=1, slices=1), dict(workers=2, slices=3)):
+        b = warprt.Renderer(mesh_scene(), device="cpu").render(spp=3, seed=4, progress=False, **options)
+        assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
+        assert np.all(np.isfinite(b.image)) and b.image.max() > 0.0
+
+
 def test_slices_cover_every_row_once():
     # each slice's k-th row as the render kernels place it: blocks of consecutive rows
     from warprt.render import _slices

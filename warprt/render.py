@@ -5,8 +5,9 @@ interleaved sets of row blocks (slice j holds blocks j, j + S, j + 2S, ... of SL
 consecutive rows), launched from a pool of worker threads (one per core, kept by the renderer)
 that take slices from a shared queue. Interleaving gives every slice the same mix of cheap and
 expensive pixels, so a few launches per pass balance the cores, and the rows of a block, taken
-in turn by one thread, find in the caches the tree nodes and triangles the row above brought
-there; each launch is recorded once per render and
+in turn by one thread (in scenes with meshes a block of 4 rows column by column:
+``integrator.render_kernel``), find in the caches the tree nodes and triangles the pixels
+before brought there; each launch is recorded once per render and
 replayed with new sample bounds, so a pass costs a few microseconds of Python. On CUDA each pass
 is one launch over the whole frame. A thread owns a pixel for the whole pass and adds its
 samples in order, and every random number depends only on (seed, pixel, sample, dimension): the
@@ -496,7 +497,10 @@ class Renderer:
                 cmd.set_param_at_index(PARAMS_ARG, params)
         else:
             run = pixels_per_thread(dev, cam.width)
-            launches = [wp.launch(self.kernel, dim=count // run, device=dev, record_cmd=True,
+            # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row: integrator.render_kernel)
+            blocks = run >= cam.width and self.features.meshes
+            launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
+                                  device=dev, record_cmd=True,
                                   inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0, film.data,
                                           run, block])
                         for first, stride, block, count in _slices(cam.width, cam.height, n_slices)]
