@@ -177,12 +177,12 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         """Samples [s0, s1) of the ``n_pix`` raster pixels of ``cam`` that fill 2^sh rows from
         (px0, py) column by column: pixel j is (px0 + (j >> sh), py + (j & (2^sh - 1))), added to
         film entry pixel0 + (j & (2^sh - 1)) · width + (j >> sh) (also the pixel's noise key: unique
-        over everything one film holds; shifts, not divisions: those cost scene (a) 7%). The samples are taken pixel by pixel, each pixel's in order, so its sums
-        are the same whatever the grouping; with camera packets a packet takes PACKET samples in
-        that order, from the next pixels too when a pixel has fewer left (an adaptive render's
-        pilot and later passes, low spp), so that packets stay full: a column's pixels lie
-        together, so a packet over several pixels covers a patch of the image (2 × 4 pixels at one
-        sample a pixel in 4 rows) rather than a strip of a row."""
+        over everything one film holds; sh 0: a row). The samples are taken pixel by pixel, each
+        pixel's in order, so its sums are the same whatever the grouping; with camera packets a
+        packet takes PACKET samples in that order, from the next pixels too when a pixel has fewer
+        left (an adaptive render's pilot and later passes, low spp), so that packets stay full: a
+        column's pixels lie together, so a packet over several pixels covers a patch of the image
+        (2 × 4 pixels at one sample a pixel in 4 rows) rather than a strip of a row."""
         rm = (1 << sh) - 1
         # the pixel whose sums are held (-1: none yet); the first pass starts the sums (the film
         # needs no zeroing), later passes add to them; a pixel without samples in a later pass
@@ -689,7 +689,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         # launch's arguments are copied once per row, not per pixel). With meshes, a CPU thread
         # takes a whole block instead, a block of 4 rows column by column (render_pixels: its
         # packets over several pixels cover patches, and the rays of neighbouring pixels follow
-        # each other through the trees: (d) 0.93-0.97x a render; scenes without meshes lost 3-5%
+        # each other through the trees: (d) 0.94-0.97x a render; scenes without meshes lost 5-7%
         # to the film's four interleaved rows, so keep to rows). One call site per kernel:
         # render_pixels is inlined
         if wp.static(F.meshes):

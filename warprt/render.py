@@ -497,7 +497,8 @@ class Renderer:
                 cmd.set_param_at_index(PARAMS_ARG, params)
         else:
             run = pixels_per_thread(dev, cam.width)
-            # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row: integrator.render_kernel)
+            # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
+            # integrator.render_kernel)
             blocks = run >= cam.width and self.features.meshes
             launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
                                   device=dev, record_cmd=True,
