@@ -23,10 +23,12 @@ Method (details in docs/benchmarks.md, "Side by side with Mitsuba 3"):
    ``stratified``, ``sobol+adaptive`` (adaptive sampling with spp as the mean budget),
    ``sobol+split`` (area lights with ``samples = "auto"``) and ``sobol+split+adaptive``;
    Mitsuba ``multijitter`` and ``independent``, and ``multijitter+split``), one warm-up render per
-   (scene, sampler, spp) so kernel compile and JIT are excluded, repeats interleaved between the
+   (scene, sampler, spp) so kernel compile and JIT are excluded, renders interleaved between the
    renderers (each timed render after ``SETTLE_S`` idle, so that neither renderer's idle threads
-   share the cores with the other's render), the minimum wall time of the repeats (process CPU
-   time too), the mean error of the warm-up and the repeats less the reference's own noise.
+   share the cores with the other's render), each repeat a sweep over every spp point in turn (so
+   that a slow spell of the host, seconds long, falls on one repeat of a few points, not on all
+   the repeats of one), the minimum wall time of the repeats (process CPU time too), the mean
+   error of the warm-up and the repeats less the reference's own noise.
    Time to relative MSE 1e-2 and 1e-3 is interpolated (log-log) for each renderer's best
    sampler. From 64 spp on, a curve stops once each target is reached, or lost to another
    sampler of the same renderer (``--full-curves`` runs them all to the end).
@@ -705,52 +707,66 @@ def study_scene(key: str, mi, dr, args, log) -> dict:
         np.save(d / f"{key}-mitsuba-ref.npy", ref.astype(np.float32))
         np.save(d / f"{key}-warprt-check.npy", wimg.astype(np.float32))
 
-    # 2. timing sweep, interleaved
+    # 2. timing sweep, interleaved: the first repeat sweeps the spp up (each point after its
+    # warm-up, early stop as it goes), the other repeats sweep those points again in turn, so
+    # that a slow spell of the host (seconds long) falls on one repeat of several points rather
+    # than on every repeat of one
     sides = [(ws, s) for s in ws.renderers] + [(ms, s) for s in ms.samplers]
     curves = {f"{side.name}/{s}": [] for side, s in sides}
     done = {k: False for k in curves}
     warm = {k: 0.0 for k in curves}
+    swept = []  # (spp, the samplers measured there) in the order of the first repeat
+    runs = {}  # (sampler key, spp) -> {"times", "cpus", "errs", "got"}
+
+    def timed(side, s, spp, r):
+        k = f"{side.name}/{s}"
+        time.sleep(SETTLE_S)  # the previous render's threads idle first (see SETTLE_S)
+        img, wall, got, cpu = side.render(s, spp, 1 + r)
+        run = runs[(k, spp)]
+        run["times"].append(wall)
+        run["cpus"].append(cpu)
+        run["errs"].append(relative_mse(img, ref))
+        run["got"] = got
+
+    def point(k, spp):
+        run = runs[(k, spp)]
+        e = float(np.mean(run["errs"]))
+        t = float(min(run["times"]))
+        return {"spp": spp, "spp_actual": run["got"], "seconds": t, "seconds_all": run["times"],
+                "cpu_seconds": float(min(run["cpus"])), "cpu_seconds_all": run["cpus"],
+                "warmup_s": run["warmup"], "rel_mse": e, "rel_mse_all": run["errs"], "rel_mse_corrected": e - floor,
+                "msamples_per_s": w * h * run["got"] / t / 1e6}
+
     t_sweep = time.perf_counter()
     for spp in args.spps:
         active = [(side, s) for side, s in sides if not done[f"{side.name}/{s}"]]
         if not active:
             break
-        warmups = {}
-        errs = {f"{side.name}/{s}": [] for side, s in active}
         for side, s in active:  # one warm-up per (scene, sampler, spp): compile/JIT excluded from the times
-            img, wall, _, _ = side.render(s, spp, 99)
-            warmups[f"{side.name}/{s}"] = wall
-            errs[f"{side.name}/{s}"].append(relative_mse(img, ref))  # its image still counts for the error
-        times = {f"{side.name}/{s}": [] for side, s in active}
-        cpus = {f"{side.name}/{s}": [] for side, s in active}
-        got_spp = {}
-        for r in range(args.repeats):  # repeat by repeat, alternating the renderers
-            order = active if r % 2 == 0 else active[::-1]
-            for side, s in order:
-                k = f"{side.name}/{s}"
-                time.sleep(SETTLE_S)  # the previous render's threads idle first (see SETTLE_S)
-                img, wall, got, cpu = side.render(s, spp, 1 + r)
-                times[k].append(wall)
-                cpus[k].append(cpu)
-                errs[k].append(relative_mse(img, ref))
-                got_spp[k] = got
-        for side, s in active:
             k = f"{side.name}/{s}"
-            e = float(np.mean(errs[k]))
-            t = float(min(times[k]))
-            warm[k] += warmups[k]
-            curves[k].append({"spp": spp, "spp_actual": got_spp[k], "seconds": t, "seconds_all": times[k],
-                              "cpu_seconds": float(min(cpus[k])), "cpu_seconds_all": cpus[k],
-                              "warmup_s": warmups[k], "rel_mse": e, "rel_mse_all": errs[k],
-                              "rel_mse_corrected": e - floor,
-                              "msamples_per_s": w * h * got_spp[k] / t / 1e6})
+            img, wall, _, _ = side.render(s, spp, 99)
+            runs[(k, spp)] = {"times": [], "cpus": [], "errs": [relative_mse(img, ref)], "got": spp, "warmup": wall}
+            warm[k] += wall  # (its image still counts for the error)
+        for side, s in active:
+            timed(side, s, spp, 0)
+        swept.append((spp, active))
+        for side, s in active:
+            curves[f"{side.name}/{s}"].append(point(f"{side.name}/{s}", spp))
         for side, s in active:
             k = f"{side.name}/{s}"
             siblings = [curves[f"{side.name}/{o}"] for o in (list(ws.renderers) if side is ws else ms.samplers)
                         if o != s]
             done[k] = args.early_stop and spp >= args.min_spp and _settled(curves[k], siblings)
+    for r in range(1, args.repeats):  # the other repeats, alternating the renderers' order
+        for spp, active in swept:
+            for side, s in (active if r % 2 == 0 else active[::-1]):
+                timed(side, s, spp, r)
+    for k in curves:
+        curves[k] = [point(k, p["spp"]) for p in curves[k]]
+    for spp, active in swept:
         log(f"  spp {spp:5d}: " + "  ".join(
-            f"{k} {curves[k][-1]['seconds']:.3f}s {curves[k][-1]['rel_mse']:.1e}" for k in times))
+            f"{k} {p['seconds']:.3f}s {p['rel_mse']:.1e}" for k in (f"{side.name}/{s}" for side, s in active)
+            for p in curves[k] if p["spp"] == spp))
     rec["sweep_wall_s"] = time.perf_counter() - t_sweep
     rec["curves"] = curves
     rec["warmup_total_s"] = warm
@@ -879,7 +895,8 @@ def markdown_table(results: dict) -> str:
                  f"from one; \"ratio on CPU s\": "
                  f"the same at 1e-3 on process CPU seconds. Mitsuba {m['mitsuba']} "
                  f"`{m['variant']}`{_llvm_note(m)}, warprt {m['warprt']} on the CPU device, {THREADS} threads each, "
-                 f"{results['repeats']} interleaved repeats, min time; {m['cpus']} CPU cores{_cpu_note(m)}, Python {m['python']}. "
+                 f"{results['repeats']} repeats (each a sweep over the spp points, the renderers interleaved), "
+                 f"min time; {m['cpus']} CPU cores{_cpu_note(m)}, Python {m['python']}. "
                  f"Msamples/s: pixel samples per second at the highest spp all four curves reached "
                  f"({', '.join(sorted({str(r['throughput_spp']) for r in results['scenes'].values()}))} spp).")
     return "\n".join(lines)
