@@ -69,3 +69,33 @@ def test_chunked_srgb_conversion_gives_the_same_bytes(rows):
     image[0, 0] = [np.nan, np.inf, -np.inf]
     image[5, 3] = [0.0031308, 0.0031307, 1.0]
     assert linear_to_srgb8(image, chunk_rows=rows).tobytes() == _old_srgb8(image).tobytes()
+
+
+def test_available_memory_is_read_at_most_once_a_second(monkeypatch):
+    """``available_bytes`` keeps a /proc/meminfo reading for AVAILABLE_TTL_S (a loop of small
+    renders checks every frame), then reads the file again."""
+    import io
+    from types import SimpleNamespace
+
+    clock = [100.0]
+    text = ["MemTotal: 9000 kB\nMemAvailable: 1000 kB\n"]
+    reads = []
+
+    def fake_open(path, *a, **k):
+        reads.append(path)
+        return io.StringIO(text[0])
+
+    monkeypatch.setattr(warprt.memory, "open", fake_open, raising=False)
+    monkeypatch.setattr(warprt.memory, "time", SimpleNamespace(monotonic=lambda: clock[0]))
+    monkeypatch.setattr(warprt.memory, "_available", None)
+    assert warprt.memory.available_bytes() == 1000 * 1024 and reads == ["/proc/meminfo"]
+    text[0] = "MemAvailable: 2000 kB\n"
+    clock[0] += 0.9 * warprt.memory.AVAILABLE_TTL_S
+    assert warprt.memory.available_bytes() == 1000 * 1024 and len(reads) == 1
+    clock[0] += 0.2 * warprt.memory.AVAILABLE_TTL_S
+    assert warprt.memory.available_bytes() == 2000 * 1024 and len(reads) == 2
+    # where the file is unreadable: unknown, and that answer is kept as long
+    monkeypatch.setattr(warprt.memory, "open", lambda *a, **k: (_ for _ in ()).throw(OSError("no /proc")),
+                        raising=False)
+    clock[0] += 2.0 * warprt.memory.AVAILABLE_TTL_S
+    assert warprt.memory.available_bytes() is None

@@ -107,6 +107,29 @@ def test_auto_is_chosen_once_and_the_same_for_any_workers_and_seed(device):
     assert fixed.image.tobytes() == a.tobytes()
 
 
+def test_the_light_rows_are_rewritten_only_when_the_count_changes():
+    """Every render sets the "auto" lights' count; the table is written only when it changes
+    (a row changed behind its back stays as it is until then)."""
+    r = warprt.Renderer(_penumbra_scene("auto"), device="cpu")
+    r.render(spp=1, seed=0, progress=False)
+    n = r.light_samples()
+    rows = r.built.data.alights.numpy()  # (a view of the CPU array)
+    assert int(rows["samples"][0]) == n
+    rows["samples"][0] = 99
+    r.built.set_auto_light_samples(n)
+    assert int(r.built.data.alights.numpy()["samples"][0]) == 99
+    r.built.set_auto_light_samples(n + 1)
+    assert int(r.built.data.alights.numpy()["samples"][0]) == n + 1
+    r.render(spp=1, seed=0, progress=False)
+    assert int(r.built.data.alights.numpy()["samples"][0]) == n
+    # a fresh table holds 1 until a count is set, whichever comes first
+    for k in (1, 2, 3, 4, 8, 16):
+        built = warprt.Renderer(_penumbra_scene("auto"), device="cpu").built
+        assert int(built.data.alights.numpy()["samples"][0]) == 1
+        built.set_auto_light_samples(k)
+        assert int(built.data.alights.numpy()["samples"][0]) == k
+
+
 def test_auto_converges_to_the_one_shadow_ray_image(device):
     """Splitting changes the noise, not the answer: the mean over the image with auto equals the
     one-ray image's within 4 standard errors (estimated from independent seeds of each)."""

@@ -153,6 +153,7 @@ class DeviceScene:
         d.plights = table(PointLightRec, [point_light_row(l) for l in plights], dev)
         d.n_alights = len(alights)
         d.alights = table(AreaLightRec, alights, dev)
+        self._auto_samples = 1  # what the "auto" lights' rows hold (set_auto_light_samples)
         d.ambient = wp.vec3(*scene.ambient)
         d.background = wp.vec3(*scene.background)
         self._analytic_bvh(d, rows, [m for m, _ in mats])
@@ -165,12 +166,17 @@ class DeviceScene:
         return sum(a["auto"] for a in self.area_lights)
 
     def set_auto_light_samples(self, n: int) -> None:
-        """Give every area light with ``samples = "auto"`` n shadow rays per camera sample."""
+        """Give every area light with ``samples = "auto"`` n shadow rays per camera sample (the
+        rows are rewritten only when n changes: every render sets it, and a copy of the table to
+        the device costs a 1-spp render of a small scene a few percent)."""
+        if n == self._auto_samples:
+            return
         rows = self.data.alights.numpy()
         for j, a in enumerate(self.area_lights):
             if a["auto"]:
                 rows["samples"][j] = n
         self.data.alights.assign(rows)
+        self._auto_samples = n
 
     def refresh_balls(self) -> None:
         """Give each mesh instance its asset's interior balls (``accel.interior_balls``) and normal

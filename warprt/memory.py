@@ -5,11 +5,13 @@ counts 4 + 4: ``FILM_BYTES`` = 24, on the render device), the float32 image on t
 each AOV (4 per channel, on the device, on the host and in the EXR write: 12 per channel), a PNG
 (the 8-bit image 3, Pillow's copy 4: 7; the sRGB conversion runs in row chunks, see
 :func:`warprt.image.linear_to_srgb8`) and an EXR (the contiguous RGB copy and the library's buffer:
-24). The check compares the sum with ``MemAvailable`` (Linux ``/proc/meminfo``) and is skipped
-where that is unknown.
+24). The check compares the sum with ``MemAvailable`` (Linux ``/proc/meminfo``, read at most once
+a second) and is skipped where that is unknown.
 """
 
 from __future__ import annotations
+
+import time
 
 from .aov import AOVS
 from .errors import RenderError
@@ -34,16 +36,29 @@ def estimate_bytes(width: int, height: int, aovs=(), formats=(".png",), film_on_
     return int(width) * int(height) * per_pixel
 
 
+AVAILABLE_TTL_S = 1.0  # a MemAvailable reading serves the checks of the next second
+_available: tuple[float, int | None] | None = None  # (monotonic time read, value)
+
+
 def available_bytes() -> int | None:
-    """``MemAvailable`` from /proc/meminfo, or None where unknown (not Linux)."""
+    """``MemAvailable`` from /proc/meminfo, or None where unknown (not Linux); read at most once
+    per AVAILABLE_TTL_S (the file costs ~0.2 ms to read, which a loop of small renders, each
+    checked, would pay every frame)."""
+    global _available
+    now = time.monotonic()
+    if _available is not None and now - _available[0] < AVAILABLE_TTL_S:
+        return _available[1]
+    value = None
     try:
         with open("/proc/meminfo", encoding="ascii") as f:
             for line in f:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    value = int(line.split()[1]) * 1024
+                    break
     except (OSError, ValueError, IndexError):
         pass
-    return None
+    _available = (now, value)
+    return value
 
 
 def _gb(n: int) -> str:
