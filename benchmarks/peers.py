@@ -745,8 +745,9 @@ def study_scene(key: str, mi, dr, args, log) -> dict:
         for side, s in active:  # one warm-up per (scene, sampler, spp): compile/JIT excluded from the times
             k = f"{side.name}/{s}"
             img, wall, _, _ = side.render(s, spp, 99)
+            # (the warm-up's image still counts for the error)
             runs[(k, spp)] = {"times": [], "cpus": [], "errs": [relative_mse(img, ref)], "got": spp, "warmup": wall}
-            warm[k] += wall  # (its image still counts for the error)
+            warm[k] += wall
         for side, s in active:
             timed(side, s, spp, 0)
         swept.append((spp, active))
