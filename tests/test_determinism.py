@@ -57,12 +57,58 @@ def test_bit_identical_for_any_workers_slices_and_passes(renderer, options):
 
 
 def test_every_row_rendered_for_any_slices():
-    # fresh renderers (a reused film would hide rows a slicing leaves out: they keep the last sums)
+    # fresh renderers (a reused film would hide rows a slicing leaves out: they keep the last sums);
+    # slices=None: the workers claim blocks of rows (two passes: the counter starts again)
     a = warprt.Renderer(glass_scene(), device="cpu").render(spp=2, seed=5, workers=1, slices=1, progress=False)
-    for slices in (3, 7):
-        b = warprt.Renderer(glass_scene(), device="cpu").render(spp=2, seed=5, workers=2, slices=slices,
-                                                               progress=False)
-        assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
+    for options in (dict(slices=3), dict(slices=7), dict(), dict(pass_spp=1)):
+        for workers in (1, 2):
+            b = warprt.Renderer(glass_scene(), device="cpu").render(spp=2, seed=5, workers=workers, progress=False,
+                                                                   **options)
+            assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays, (options, workers)
+
+
+def test_a_default_cpu_pass_claims_its_blocks():
+    # without slices, each of a pass's launches (one per worker) has a thread per block of 4 rows,
+    # and every thread claims one from the film's counter (the 20 rows' 5 blocks, then nothing)
+    r = warprt.Renderer(glass_scene(), device="cpu")
+    for workers in (1, 2, 3):
+        r.render(spp=2, seed=1, workers=workers, progress=False)
+        assert r._film.data.claims.numpy()[0] == workers * 5
+
+
+def test_blocks_are_claimed_once_each_by_concurrent_launches():
+    # film.claim_block from two threads' launches at once: every number handed out exactly once
+    # (several rounds: the two launches overlap for most of a round, but not in every one)
+    import threading
+
+    import warp as wp
+
+    from warprt.film import claim_block
+
+    @wp.kernel(module="unique", enable_backward=False)
+    def claims(counter: wp.array(dtype=int), out: wp.array(dtype=int)):
+        out[wp.tid()] = claim_block(counter)
+
+    n = 4_000_000
+    counter = wp.zeros(1, dtype=int, device="cpu")
+    outs = [wp.empty(n, dtype=int, device="cpu") for _ in range(2)]
+    wp.launch(claims, dim=1, inputs=[counter, outs[0]], device="cpu")  # (compiled before the race)
+    for _ in range(6):
+        counter.zero_()
+        start = threading.Barrier(2)
+
+        def run(out):
+            start.wait()
+            wp.launch(claims, dim=n, inputs=[counter, out], device="cpu")
+
+        threads = [threading.Thread(target=run, args=(o,)) for o in outs]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert counter.numpy()[0] == 2 * n
+        seen = np.bincount(np.concatenate([o.numpy() for o in outs]), minlength=2 * n)
+        assert seen.size == 2 * n and np.all(seen == 1)
 
 
 def mesh_scene() -> warprt.Scene:
@@ -85,7 +131,8 @@ def test_mesh_kernels_blocks_column_by_column_equal_row_by_row():
     rows = warprt.Renderer(mesh_scene(), device="cpu")
     assert rows.features.meshes
     a = rows.render(spp=3, seed=4, workers=1, slices=10, progress=False)
-    for options in (dict(workers=1, slices=1), dict(workers=2, slices=3)):
+    for options in (dict(workers=1, slices=1), dict(workers=2, slices=3), dict(workers=1), dict(workers=2),
+                    dict(workers=2, pass_spp=1)):
         b = warprt.Renderer(mesh_scene(), device="cpu").render(spp=3, seed=4, progress=False, **options)
         assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
         assert np.all(np.isfinite(b.image)) and b.image.max() > 0.0

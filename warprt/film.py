@@ -3,7 +3,8 @@
 Each pixel accumulates the sum of its samples' radiance (float32 linear RGB), the sum of their
 squared luminance (for the variance estimate behind ``target_error``), the rays traced and the
 rays dropped by a full ray stack. The image is the sum over the sample count, as numpy (host) or
-as a (H, W, 3) ``wp.array`` left on the device.
+as a (H, W, 3) ``wp.array`` left on the device. The film also holds the counter from which a CPU
+pass's launches claim blocks of rows (``claim_block``).
 """
 
 from __future__ import annotations
@@ -28,6 +29,24 @@ class FilmData:
     rays: wp.array(dtype=int)  # rays traced
     overflow: wp.array(dtype=int)  # rays dropped because the pixel's ray stack was full
     limit: wp.array(dtype=int)  # samples this pixel takes at most (adaptive sampling; else NO_LIMIT)
+    claims: wp.array(dtype=int)  # [0]: the blocks of rows a CPU pass has handed out (claim_block)
+
+
+# counter[0], then one more, atomically: Warp's own atomic_add is a plain read and write in CPU
+# code (a CPU launch runs on one thread), and the pool's threads claim blocks from one counter
+_CLAIM_BLOCK = r"""
+#if defined(__CUDA_ARCH__)
+return atomicAdd(counter.data, 1);
+#else
+return __atomic_fetch_add(counter.data, 1, __ATOMIC_RELAXED);
+#endif
+"""
+
+
+@wp.func_native(_CLAIM_BLOCK)
+def claim_block(counter: wp.array(dtype=int)) -> int:
+    """The next block of a pass to render (see above)."""
+    ...
 
 
 @wp.func
@@ -157,7 +176,17 @@ class Film:
         self.data.rays = alloc(n, dtype=int, device=device)
         self.data.overflow = alloc(n, dtype=int, device=device)
         self.data.limit = wp.full(n, NO_LIMIT, dtype=int, device=device)
+        self.data.claims = wp.zeros(1, dtype=int, device=device)
+        # (on the CPU a numpy view of the counter, for reset_claims)
+        self._claims = self.data.claims.numpy() if self.data.claims.device.is_cpu else None
         self.counts: np.ndarray | None = None  # per-pixel sample counts (adaptive sampling)
+
+    def reset_claims(self) -> None:
+        """No block of rows handed out yet (before each CPU pass whose launches claim them)."""
+        if self._claims is not None:
+            self._claims[0] = 0
+        else:
+            self.data.claims.zero_()
 
     def clear_counts(self) -> None:
         """No per-pixel sample cap any more (a reused film after an adaptive render)."""

@@ -34,7 +34,7 @@ import warp as wp
 from . import _warp
 from ._warp import build_once
 from .camera import camera_frame, camera_packet, camera_ray, lens_packet
-from .film import FilmData, luminance, packet_samples, sanitize
+from .film import FilmData, claim_block, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights
 from .records import KIND_MESH, KIND_NONE, CameraData, Features, RenderParams, SceneData
@@ -686,42 +686,46 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
         # ... (an interleaved slice of the frame, render._slices), ``run`` consecutive pixels of
         # one row per thread (``run`` divides the width: a CPU task takes a whole row, so the
-        # launch's arguments are copied once per row, not per pixel). With meshes, a CPU thread
-        # takes a whole block instead, a block of 4 rows column by column (render_pixels: its
-        # packets over several pixels cover patches, and the rays of neighbouring pixels follow
-        # each other through the trees: (d) 0.94-0.97x a render; scenes without meshes lost 5-7%
-        # to the film's four interleaved rows, so keep to rows). One call site per kernel:
-        # render_pixels is inlined
+        # launch's arguments are copied once per row, not per pixel); or, with stride 0 (a CPU
+        # pass's default, run = the width), each thread claims the next block of ``block`` rows
+        # from the film's counter (film.claim_block) until none is left, so that the pool's
+        # threads finish together however their cores are shared. With meshes, a CPU thread
+        # takes a whole block, a block of 4 rows column by column (render_pixels: its packets over
+        # several pixels cover patches, and the rays of neighbouring pixels follow each other
+        # through the trees: (d) 0.94-0.97x a render; scenes without meshes lost 5-7% to the
+        # film's four interleaved rows, so keep to rows). One call site per kernel: render_pixels
+        # is inlined
+        t = wp.tid()
+        px0 = int(0)
+        py = int(0)
+        whole = True  # the thread takes a whole block of rows (else ``run`` pixels of one row)
+        if stride == 0:
+            py = claim_block(film.claims) * block
+        elif run >= cam.width and wp.static(F.meshes):
+            py = row0 + t * stride
+        else:
+            k0 = t * run
+            k = k0 / cam.width
+            py = row0 + (k / block) * stride + k % block
+            px0 = k0 % cam.width
+            whole = False
+        if py >= cam.height:
+            return
+        calls = int(1)
+        if whole:
+            calls = wp.min(block, cam.height - py)
         if wp.static(F.meshes):
-            t = wp.tid()
-            px0 = int(0)
-            py = int(0)
             n_pix = run
             sh = int(0)
-            calls = int(1)
             if run >= cam.width:
-                py = row0 + t * stride
-                n_rows = wp.min(block, cam.height - py)
-                if n_rows == 4:
+                if calls == 4:
                     sh = 2
-                calls = n_rows >> sh
+                calls = calls >> sh
                 n_pix = cam.width << sh
-            else:
-                k0 = t * run
-                k = k0 / cam.width
-                py = row0 + (k / block) * stride + k % block
-                if py >= cam.height:
-                    return
-                px0 = k0 % cam.width
             for r in range(calls):
                 render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, n_pix, s0, s1, film, sh)
         else:
-            k0 = wp.tid() * run
-            k = k0 / cam.width
-            py = row0 + (k / block) * stride + k % block
-            if py >= cam.height:
-                return
-            px0 = k0 % cam.width
-            render_pixels(scene, cam, params, px0, py, py * cam.width + px0, run, s0, s1, film, 0)
+            for r in range(calls):
+                render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, run, s0, s1, film, 0)
 
     return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)

@@ -1,17 +1,18 @@
 """Render a scene: build it on a device, pick its kernel, run passes over the frame, return the image.
 
-Parallelism: a Warp launch on the CPU runs on one core, so each pass is cut into ``slices``
-interleaved sets of row blocks (slice j holds blocks j, j + S, j + 2S, ... of SLICE_BLOCK
-consecutive rows), launched from a pool of worker threads (one per core, kept by the renderer)
-that take slices from a shared queue. Interleaving gives every slice the same mix of cheap and
-expensive pixels, so a few launches per pass balance the cores, and the rows of a block, taken
-in turn by one thread (in scenes with meshes a block of 4 rows column by column:
+Parallelism: a Warp launch on the CPU runs on one core, so each pass is one launch per worker
+thread (a pool, one per core, kept by the renderer), and the launches take blocks of SLICE_BLOCK
+consecutive rows in turn from a counter in the film (``film.claim_block``) until the frame is
+done: a core slowed down by other work takes fewer blocks, and the workers finish within a block
+of each other. With ``slices=S`` a pass is instead S fixed interleaved sets of blocks (slice j
+holds blocks j, j + S, j + 2S, ...) that the workers take from a queue. The rows of a block,
+taken in turn by one thread (in scenes with meshes a block of 4 rows column by column:
 ``integrator.render_kernel``), find in the caches the tree nodes and triangles the pixels
 before brought there; each launch is recorded once per render and
 replayed with new sample bounds, so a pass costs a few microseconds of Python. On CUDA each pass
 is one launch over the whole frame. A thread owns a pixel for the whole pass and adds its
 samples in order, and every random number depends only on (seed, pixel, sample, dimension): the
-image is bit-identical for any slice count, worker count or pass split.
+image is bit-identical for any worker count, slices or pass split, whichever thread takes a block.
 
 Progressive rendering: the samples are split into passes (a renderer's very first pass is one
 sample per pixel, to time one; every later pass, in that render or the next, is sized to take
@@ -90,8 +91,10 @@ S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 PARAMS_ARG = 2  # position of the render's parameters (RenderParams)
 ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
-SLICES_PER_WORKER = 4  # interleaved pixel sets per worker and pass (spare slices absorb a slow core)
-# consecutive rows a slice takes at a time: on (d) (4 spp, 4 light samples, 1 worker) rows 4 apart
+# interleaved pixel sets per worker and pass where a pass is cut into fixed slices (the
+# splitting pilot's, worlds.BatchRenderer's; spare slices absorb a slow core)
+SLICES_PER_WORKER = 4
+# consecutive rows a thread takes at a time: on (d) (4 spp, 4 light samples, 1 worker) rows 4 apart
 # cost 1.06x the CPU time of consecutive ones, rows 2 apart 1.025x (docs/benchmarks.md, levers)
 SLICE_BLOCK = 4
 
@@ -381,8 +384,9 @@ class Renderer:
         ``material``, ``motion``; averaged over the image's own samples, see ``warprt.aov``)
         returned in ``RenderResult.aovs``. With ``as_warp=True`` the image and the AOVs stay on the
         device: ``RenderResult.image`` is a (H, W, 3) float32 ``wp.array`` (DLPack-ready for torch
-        or JAX), with no copy to the host. ``slices``: interleaved pixel sets per pass on the CPU
-        (default ``SLICES_PER_WORKER`` per worker); it changes the speed, never the image. ``stop``: an
+        or JAX), with no copy to the host. ``slices``: on the CPU, cut each pass into that many
+        fixed interleaved sets of rows (default: none; the workers take blocks of rows in turn
+        until the frame is done); it changes the speed, never the image. ``stop``: an
         event (anything with ``is_set()``, e.g. ``threading.Event``) read after each pass like Ctrl-C:
         once set, the render returns what it has, marked ``interrupted`` (how a Ctrl-C reaches
         renders in worker threads and processes, where no SIGINT handler can be installed).
@@ -425,7 +429,8 @@ class Renderer:
                 self.compile()
                 self._loaded = self.kernel
             self.light_samples(int(workers))  # samples = "auto": chosen once, then set for every render
-            n_slices = (SLICES_PER_WORKER * workers if slices is None else int(slices)) if dev.is_cpu else 1
+            # (None: the CPU workers claim blocks of rows; see the module docstring)
+            n_slices = (None if slices is None else int(slices)) if dev.is_cpu else 1
             run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop)
 
             show = (sys.stderr.isatty() if progress is None else progress)
@@ -476,7 +481,7 @@ class Renderer:
                 self._film_lock.release()
 
     def _passes(self, film: Film, params, start: int, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error,
-                *, workers: int, n_slices: int, pass_spp, stop) -> tuple[int, bool, float | None]:
+                *, workers: int, n_slices: int | None, pass_spp, stop) -> tuple[int, bool, float | None]:
         """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
         early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
         relative error or None). The renderer's first pass is one sample (to time one); every
@@ -485,13 +490,14 @@ class Renderer:
         each index."""
         cam = self.scene.camera
         dev = self.device
-        # one recorded launch per slice, replayed every pass with the pass's sample range; kept for
-        # the next call while kernel, scene (its record is made once, with it), camera, film and
-        # slices are the same objects, with only the render's parameters set again (recording
-        # packs every argument, the scene's record among them: about 0.3 ms for 8 slices)
-        key = (self.kernel, self.built, self.built.camera, film, n_slices)
+        # one recorded launch per worker (or slice), replayed every pass with the pass's sample
+        # range; kept for the next call while kernel, scene (its record is made once, with it),
+        # camera and film are the same objects and slices and workers the same numbers, with only
+        # the render's parameters set again (recording packs every argument, the scene's record
+        # among them: about 0.3 ms for 8 launches)
+        key = (self.kernel, self.built, self.built.camera, film, n_slices, workers)
         kept = self._launches
-        if kept is not None and all(a is b for a, b in zip(kept[0], key)):
+        if kept is not None and all(a is b for a, b in zip(kept[0][:4], key[:4])) and kept[0][4:] == key[4:]:
             launches = kept[1]
             for cmd in launches:
                 cmd.set_param_at_index(PARAMS_ARG, params)
@@ -500,11 +506,20 @@ class Renderer:
             # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
             # integrator.render_kernel)
             blocks = run >= cam.width and self.features.meshes
-            launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
-                                  device=dev, record_cmd=True,
-                                  inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0, film.data,
-                                          run, block])
-                        for first, stride, block, count in _slices(cam.width, cam.height, n_slices)]
+            if n_slices is None:
+                # one launch per worker, each claiming blocks of rows until none is left (stride 0):
+                # as many threads as blocks, in case one launch takes them all
+                n_blocks = -(-cam.height // SLICE_BLOCK)
+                launches = [wp.launch(self.kernel, dim=n_blocks, device=dev, record_cmd=True,
+                                      inputs=[self.built.data, self.built.camera, params, 0, 0, 0, 0, film.data,
+                                              cam.width, SLICE_BLOCK])
+                            for _ in range(workers)]
+            else:
+                launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
+                                      device=dev, record_cmd=True,
+                                      inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
+                                              film.data, run, block])
+                            for first, stride, block, count in _slices(cam.width, cam.height, n_slices)]
             if film is self._film:  # (a film of a render in another thread is not kept)
                 self._launches = (key, launches)
         pool = self._pool.get(workers)
@@ -539,6 +554,8 @@ class Renderer:
             else:
                 size = 1  # the renderer's first pass: one sample, to time one
             size = min(size, spp - done)
+            if n_slices is None:  # (each pass's launches claim the blocks from the first again)
+                film.reset_claims()
             try:
                 run_pass(pool, launches, workers, done, done + size)
             except KeyboardInterrupt:
