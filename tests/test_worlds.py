@@ -153,6 +153,13 @@ def test_batches_are_bit_identical_for_any_thread_or_slice_count_and_worlds_are_
     fresh = BatchRenderer(scene, worlds=W, cameras=C, device="cpu")
     fresh.set_shape_poses(poses)
     assert np.array_equal(fresh.render(spp=3, seed=5, workers=2, slices=W * C * fresh.height).numpy(), a)
+    # and fresh batches whose workers claim blocks of rows (the default), one worker and two
+    for workers in (1, 2):
+        fresh = BatchRenderer(scene, worlds=W, cameras=C, device="cpu")
+        fresh.set_shape_poses(poses)
+        for _ in range(2):  # (the second render claims the blocks from the first again)
+            assert np.array_equal(fresh.render(spp=3, seed=5, workers=workers).numpy(), a)
+            assert fresh.film.data.claims.numpy()[0] == workers * -(-W * C * fresh.height // 4)
     poses2 = poses.copy()
     poses2[1, 1, :3] += [0.3, 0.0, 0.0]  # world 1's sphere moves
     br.set_shape_poses(poses2)

@@ -91,8 +91,8 @@ S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 PARAMS_ARG = 2  # position of the render's parameters (RenderParams)
 ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
-# interleaved pixel sets per worker and pass where a pass is cut into fixed slices (the
-# splitting pilot's, worlds.BatchRenderer's; spare slices absorb a slow core)
+# interleaved sets of rows per worker in the light-splitting pilot's passes (Renderer.light_samples),
+# which are cut into fixed slices (spare slices absorb a slow core)
 SLICES_PER_WORKER = 4
 # consecutive rows a thread takes at a time: on (d) (4 spp, 4 light samples, 1 worker) rows 4 apart
 # cost 1.06x the CPU time of consecutive ones, rows 2 apart 1.025x (docs/benchmarks.md, levers)

@@ -25,8 +25,8 @@ small kernels (world tables, cameras, the BVH's bounds plus a refit), so an upda
 copy, no rebuild and no recompile; ``counters`` counts all three, and the tests check them
 against Warp's own entry points.
 
-The frame rendered is one tall image, W·C·H rows of the camera's width, cut into interleaved row
-slices over the worker threads like a single image (``render.py``); each pixel's noise is keyed
+The frame rendered is one tall image, W·C·H rows of the camera's width, whose blocks of rows the
+worker threads claim in turn like a single image's (``render.py``); each pixel's noise is keyed
 by its index in that image, so the batch is bit-identical for any thread count, and a world
 renders the same whatever the other worlds hold. The render kernel is the single-image one's
 per-pixel function with the world's rows of each table (array views of (W, n) tables) and the
@@ -47,7 +47,7 @@ from ._warp import build_once
 from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .errors import RenderError
-from .film import Film, FilmData
+from .film import Film, FilmData, claim_block
 from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_names, id_map, shaped
 from .integrator import kernels_for, packets_for
 from .memory import check_memory
@@ -55,15 +55,11 @@ from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
     CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SolidRec, SphereRec,
 )
-from .render import SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass
+from .render import SLICE_BLOCK, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
 
-# default slices of a batch: at least SLICES_PER_WORKER per worker, and at most this many rows each.
-# 64 worlds x 2 cameras x 128 rows on 2 workers: 8 slices 286 ms, 32 slices 250 ms, 128 252 ms,
-# 512 282 ms (min of 5); one 512-row image is fastest at 8 (36 ms; 43 ms at 128)
-ROWS_PER_SLICE = 512
 BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
 
 
@@ -259,23 +255,34 @@ def batch_kernel_for(F: Features, packets: bool):
                      block: int):
         # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
         # ... of the tall image (W·C·H rows; render._slices), ``run`` consecutive pixels of one row
-        # per thread (``run`` divides the width); a batch renders all its samples in one pass, so
+        # per thread (``run`` divides the width); or, with stride 0 (a CPU batch's default, run =
+        # the width), each thread claims the next block of ``block`` rows from the film's counter
+        # (film.claim_block) until none is left. A batch renders all its samples in one pass, so
         # each pixel's colour is written here too
         k0 = wp.tid() * run
-        k = k0 / width
-        gy = row0 + (k / block) * stride + k % block
-        image = gy / height
-        if image >= cams.shape[0]:
-            return
-        sc = world_scene(scene, tables, image / n_cams)
-        cam = cams[image]
-        py = gy - image * height
-        px0 = k0 % width
-        for j in range(run):
-            px = px0 + j
-            g = gy * width + px
-            render_pixel(sc, cam, params, px, py, g, s0, s1, film)
-            color[g] = film.accum[g] * inv_spp
+        gy0 = int(0)
+        px0 = int(0)
+        rows = int(1)
+        if stride == 0:  # (a last block's rows past the image's end return below)
+            gy0 = claim_block(film.claims) * block
+            rows = block
+        else:
+            k = k0 / width
+            gy0 = row0 + (k / block) * stride + k % block
+            px0 = k0 % width
+        for r in range(rows):
+            gy = gy0 + r
+            image = gy / height
+            if image >= cams.shape[0]:
+                return
+            sc = world_scene(scene, tables, image / n_cams)
+            cam = cams[image]
+            py = gy - image * height
+            for j in range(run):
+                px = px0 + j
+                g = gy * width + px
+                render_pixel(sc, cam, params, px, py, g, s0, s1, film)
+                color[g] = film.accum[g] * inv_spp
 
     return batch_render
 
@@ -542,11 +549,9 @@ class BatchRenderer:
         workers = default_workers() if workers is None else _positive_int(workers, "workers")
         dev = self.device
         rows = self.worlds * self.cameras * self.height
-        if slices is None:  # a tall batch is cut finer than one image: every slice ~ROWS_PER_SLICE rows
-            n_slices = max(SLICES_PER_WORKER * workers, rows // ROWS_PER_SLICE)
-        else:
-            n_slices = _positive_int(slices, "slices")
-        n_slices = n_slices if dev.is_cpu else 1
+        # (None: on the CPU one launch per worker, claiming blocks of rows from the film's counter;
+        # slices=N: N fixed interleaved sets of blocks)
+        n_slices = (None if slices is None else _positive_int(slices, "slices")) if dev.is_cpu else 1
         params = render_params(self.scene, spp, int(seed), self.features)
         run = pixels_per_thread(dev, self.width)
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
@@ -562,11 +567,19 @@ class BatchRenderer:
         if self.bvh is not None:
             wp.launch(refit_kernel, dim=self.worlds, device=dev,
                       inputs=[self.bvh, self._lowers, self._uppers, self._per_world - 1])
-        launches = []  # (every pixel starts its film sums at sample 0: no zeroing)
-        for first, stride, block, count in _slices(self.width, rows, n_slices):
+        # (every pixel starts its film sums at sample 0: no zeroing)
+        if n_slices is None:  # stride 0: claim blocks, a thread per block in case one launch takes them all
             args = list(inputs)
-            args[3], args[4], args[-1] = first, stride, block
-            launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
+            args[4], args[-1] = 0, SLICE_BLOCK
+            launches = [wp.launch(self._kernel, dim=-(-rows // SLICE_BLOCK), device=dev, inputs=args, record_cmd=True)
+                        for _ in range(workers)]
+            self.film.reset_claims()
+        else:
+            launches = []
+            for first, stride, block, count in _slices(self.width, rows, n_slices):
+                args = list(inputs)
+                args[3], args[4], args[-1] = first, stride, block
+                launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
         shape = (self.worlds, self.cameras, self.height, self.width)
         aov_maps = {}
