@@ -76,6 +76,20 @@ def test_a_default_cpu_pass_claims_its_blocks():
         assert r._film.data.claims.numpy()[0] == workers * 5
 
 
+def test_threads_of_single_pixels_take_fixed_slices(monkeypatch):
+    # a thread per pixel (as tests comparing packets with lone samples render) cannot take a block
+    # of rows: such passes are cut into fixed slices, and the image is the same
+    import importlib
+
+    render_module = importlib.import_module("warprt.render")  # (warprt.render is also the function)
+    a = warprt.Renderer(glass_scene(), device="cpu").render(spp=2, seed=1, workers=2, progress=False)
+    monkeypatch.setattr(render_module, "pixels_per_thread", lambda dev, width: 1)
+    r = warprt.Renderer(glass_scene(), device="cpu")
+    b = r.render(spp=2, seed=1, workers=2, progress=False)
+    assert r._film.data.claims.numpy()[0] == 0
+    assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
+
+
 def test_blocks_are_claimed_once_each_by_concurrent_launches():
     # film.claim_block from two threads' launches at once: every number handed out exactly once
     # (several rounds: the two launches overlap for most of a round, but not in every one)

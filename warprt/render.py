@@ -91,8 +91,9 @@ S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 PARAMS_ARG = 2  # position of the render's parameters (RenderParams)
 ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
-# interleaved sets of rows per worker in the light-splitting pilot's passes (Renderer.light_samples),
-# which are cut into fixed slices (spare slices absorb a slow core)
+# interleaved sets of rows per worker where a pass is cut into fixed slices: the light-splitting
+# pilot's (Renderer.light_samples), and a render's (or a batch's) whose threads take less than a
+# row each (spare slices absorb a slow core)
 SLICES_PER_WORKER = 4
 # consecutive rows a thread takes at a time: on (d) (4 spp, 4 light samples, 1 worker) rows 4 apart
 # cost 1.06x the CPU time of consecutive ones, rows 2 apart 1.025x (docs/benchmarks.md, levers)
@@ -495,18 +496,21 @@ class Renderer:
         # camera and film are the same objects and slices and workers the same numbers, with only
         # the render's parameters set again (recording packs every argument, the scene's record
         # among them: about 0.3 ms for 8 launches)
-        key = (self.kernel, self.built, self.built.camera, film, n_slices, workers)
+        run = pixels_per_thread(dev, cam.width)
+        # by default (n_slices None: the CPU) each worker's launch claims blocks of rows; threads
+        # of fewer pixels than a row (tests that render pixel by pixel) take fixed slices instead
+        claims = n_slices is None and run >= cam.width
+        key = (self.kernel, self.built, self.built.camera, film, n_slices, workers, run)
         kept = self._launches
         if kept is not None and all(a is b for a, b in zip(kept[0][:4], key[:4])) and kept[0][4:] == key[4:]:
             launches = kept[1]
             for cmd in launches:
                 cmd.set_param_at_index(PARAMS_ARG, params)
         else:
-            run = pixels_per_thread(dev, cam.width)
             # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
             # integrator.render_kernel)
             blocks = run >= cam.width and self.features.meshes
-            if n_slices is None:
+            if claims:
                 # one launch per worker, each claiming blocks of rows until none is left (stride 0):
                 # as many threads as blocks, in case one launch takes them all
                 n_blocks = -(-cam.height // SLICE_BLOCK)
@@ -519,7 +523,8 @@ class Renderer:
                                       device=dev, record_cmd=True,
                                       inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
                                               film.data, run, block])
-                            for first, stride, block, count in _slices(cam.width, cam.height, n_slices)]
+                            for first, stride, block, count in _slices(
+                                cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices)]
             if film is self._film:  # (a film of a render in another thread is not kept)
                 self._launches = (key, launches)
         pool = self._pool.get(workers)
@@ -554,7 +559,7 @@ class Renderer:
             else:
                 size = 1  # the renderer's first pass: one sample, to time one
             size = min(size, spp - done)
-            if n_slices is None:  # (each pass's launches claim the blocks from the first again)
+            if claims:  # (each pass's launches claim the blocks from the first again)
                 film.reset_claims()
             try:
                 run_pass(pool, launches, workers, done, done + size)

@@ -55,7 +55,7 @@ from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
     CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SolidRec, SphereRec,
 )
-from .render import SLICE_BLOCK, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass
+from .render import SLICE_BLOCK, SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
@@ -567,8 +567,9 @@ class BatchRenderer:
         if self.bvh is not None:
             wp.launch(refit_kernel, dim=self.worlds, device=dev,
                       inputs=[self.bvh, self._lowers, self._uppers, self._per_world - 1])
-        # (every pixel starts its film sums at sample 0: no zeroing)
-        if n_slices is None:  # stride 0: claim blocks, a thread per block in case one launch takes them all
+        # (every pixel starts its film sums at sample 0: no zeroing; stride 0: the launches claim
+        # blocks of rows, a thread per block in case one launch takes them all)
+        if n_slices is None and run >= self.width:
             args = list(inputs)
             args[4], args[-1] = 0, SLICE_BLOCK
             launches = [wp.launch(self._kernel, dim=-(-rows // SLICE_BLOCK), device=dev, inputs=args, record_cmd=True)
@@ -576,7 +577,8 @@ class BatchRenderer:
             self.film.reset_claims()
         else:
             launches = []
-            for first, stride, block, count in _slices(self.width, rows, n_slices):
+            for first, stride, block, count in _slices(self.width, rows,
+                                                       SLICES_PER_WORKER * workers if n_slices is None else n_slices):
                 args = list(inputs)
                 args[3], args[4], args[-1] = first, stride, block
                 launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
