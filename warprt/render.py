@@ -507,9 +507,6 @@ class Renderer:
             for cmd in launches:
                 cmd.set_param_at_index(PARAMS_ARG, params)
         else:
-            # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
-            # integrator.render_kernel)
-            blocks = run >= cam.width and self.features.meshes
             if claims:
                 # one launch per worker, each claiming blocks of rows until none is left (stride 0):
                 # as many threads as blocks, in case one launch takes them all
@@ -519,6 +516,9 @@ class Renderer:
                                               cam.width, SLICE_BLOCK])
                             for _ in range(workers)]
             else:
+                # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
+                # integrator.render_kernel)
+                blocks = run >= cam.width and self.features.meshes
                 launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
                                       device=dev, record_cmd=True,
                                       inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
