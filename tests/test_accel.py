@@ -16,6 +16,7 @@ import warp as wp
 import warprt
 from warprt import accel
 from warprt._warp import MODULE_OPTIONS
+from warprt.build import DeviceScene
 from warprt.records import InstRec
 from warprt.trace import mesh_first_hit
 
@@ -1611,3 +1612,264 @@ def test_wide_tree_holds_the_binary_trees_leaves_four_to_a_node():
     mesh.refit()
     tree.refresh()
     _wide_tree_checks(tree, n)
+
+
+def _bins_mesh():
+    v, f = _bumpy_sphere()
+    mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
+    tree = accel.MeshTree(mesh, len(f))
+    assert tree.usable
+    return v, f, mesh, tree
+
+
+def _bins_against_tree(mesh, tree, rec, o, d, reach):
+    """Each lane's (t, u, v, face) through the bins (``accel.mesh_bins_packet``) and through the
+    tree (``mesh_tree_packet``), packets of 8 rays, and whether the bins served each packet."""
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+    def k(mid: wp.uint64, bins: wp.uint64, wide: wp.uint64, tris: wp.uint64, o: wp.array(dtype=wp.vec3, ndim=2),
+          d: wp.array(dtype=wp.vec3, ndim=2), reach: wp.array(dtype=float, ndim=2),
+          via_bins: wp.array(dtype=wp.vec4, ndim=2), via_tree: wp.array(dtype=wp.vec4, ndim=2),
+          served: wp.array(dtype=int)):
+        i = wp.tid()
+        ox = accel.PacketF()
+        oy = accel.PacketF()
+        oz = accel.PacketF()
+        dx = accel.PacketF()
+        dy = accel.PacketF()
+        dz = accel.PacketF()
+        tm = accel.PacketF()
+        for l in range(accel.PACKET):
+            ox[l] = o[i, l][0]
+            oy[l] = o[i, l][1]
+            oz[l] = o[i, l][2]
+            dx[l] = d[i, l][0]
+            dy[l] = d[i, l][1]
+            dz[l] = d[i, l][2]
+            tm[l] = reach[i, l]
+        bt = accel.PacketF()
+        bu = accel.PacketF()
+        bv = accel.PacketF()
+        bf = accel.PacketI()
+        served[i] = accel.mesh_bins_packet(mid, bins, tris, ox, oy, oz, dx, dy, dz, tm, bt, bu, bv, bf)
+        tt = accel.PacketF()
+        tu = accel.PacketF()
+        tv = accel.PacketF()
+        tf = accel.PacketI()
+        done = accel.mesh_tree_packet(mid, wide, tris, ox, oy, oz, dx, dy, dz, tm, tt, tu, tv, tf)
+        for l in range(accel.PACKET):
+            if tm[l] >= 0.0:
+                via_bins[i, l] = wp.vec4(bt[l], bu[l], bv[l], float(bf[l]))
+                via_tree[i, l] = wp.vec4(tt[l], tu[l], tv[l], float(tf[l] + (1 - done) * 100000))
+
+    n = len(o)
+    arrays = [wp.array(x, dtype=dt, device="cpu") for x, dt in ((o, wp.vec3), (d, wp.vec3), (reach, float))]
+    via_bins, via_tree = wp.zeros((n, 8), dtype=wp.vec4, device="cpu"), wp.zeros((n, 8), dtype=wp.vec4, device="cpu")
+    served = wp.zeros(n, dtype=int, device="cpu")
+    bins = wp.array(rec, dtype=wp.float32, device="cpu") if rec is not None else None
+    wp.launch(k, dim=n, device="cpu", inputs=[mesh.id, 0 if bins is None else bins.ptr, tree.wide.ptr, tree.tris.ptr,
+                                              *arrays, via_bins, via_tree, served])
+    return via_bins.numpy(), via_tree.numpy(), served.numpy().astype(bool)
+
+
+@pytest.mark.parametrize("eye", [(0.4, 0.9, 3.4), (-0.3, 0.2, 1.9)])
+def test_camera_bins_give_each_lane_the_trees_hit_bit_for_bit(eye):
+    """``accel.camera_bins``: camera rays from the bins' origin through the cells' lists of
+    triangles get the nearest hit of the packets' traversal bit for bit (t, u, v, face): rays
+    aimed exactly at every vertex, edge midpoint and centroid (where the projected boxes and
+    the triangles' edges meet cells' borders, and neighbouring triangles tie), at jittered points
+    of the view, with open and bounded reaches. Rays from elsewhere or outside the grid are left
+    to the tree (0); a near eye sees the mesh overflow the view."""
+    v, f, mesh, tree = _bins_mesh()
+    o = np.asarray(eye, np.float32)
+    fwd = -o.astype(np.float64) + [0.0, 0.05, 0.0]
+    tan_y = np.tan(np.radians(50.0) / 2.0)
+    tan_x = tan_y * 64 / 48
+    rec = accel.camera_bins(tree.tris, o, fwd, (0.0, 1.0, 0.0), tan_x, tan_y, 2.0 * tan_y / 48 / accel.BINS_PER_PIXEL,
+                            (v.min(0), v.max(0)))
+    assert rec is not None
+    tri = v[f]
+    rng = np.random.default_rng(5)
+    targets = np.concatenate([v, (tri + np.roll(tri, 1, axis=1)).reshape(-1, 3) * np.float32(0.5), tri.mean(1)])
+    rng.shuffle(targets)
+    w = fwd / np.linalg.norm(fwd)
+    u = np.cross(w, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    up = np.cross(u, w)
+    ab = rng.uniform(-1.0, 1.0, (4096, 2)) * [tan_x, tan_y]
+    view = w + ab[:, :1] * u + ab[:, 1:] * up
+    d = np.concatenate([(targets - o).astype(np.float32), view.astype(np.float32)])
+    d = d[:len(d) // 8 * 8]
+    reach = np.full(len(d), 3.0e38, np.float32)
+    reach[1::3] = np.linalg.norm(d[1::3], axis=1) * 0.97  # (short of the targets: what lies before them)
+    reach[2::7] = -1.0  # lanes that take no part
+    o_all = np.broadcast_to(o, d.shape).copy()
+    n = len(d) // 8
+    via_bins, via_tree, served = _bins_against_tree(mesh, tree, rec, o_all.reshape(n, 8, 3), d.reshape(n, 8, 3),
+                                                    reach.reshape(n, 8))
+    aimed = len(targets) // 8  # (the packets aimed at the mesh: all in view from afar)
+    # (the view's rays: the grid is the view cut to the mesh's projected box, or the whole view
+    # where the mesh overflows it; of the aimed rays, those in view)
+    if eye[2] > 3:
+        assert served[:aimed].all() and 0.05 < served[aimed:].mean() < 0.95
+    else:
+        assert 0.2 < served[:aimed].mean() < 0.9 and served[aimed:].all()
+    assert not (via_tree[..., 3] >= 100000).any()  # (the tree took every packet)
+    part = served[:, None] & (reach.reshape(n, 8) >= 0)
+    got, want = via_bins[part], via_tree[part]
+    assert (want[:, 3] >= 0).mean() > 0.5 and (want[:, 3] < 0).any()
+    # the same hit, but where two triangles meet the ray at the same t, or within rounding of it
+    # (a ray through a vertex or an edge), and rounding put a box's entry past that t: the tree's
+    # walk then skipped the nearer one, or the one at the lower leaf that the tie rule prefers
+    leaf = {r.tobytes(): k for k, r in enumerate(tree.tris.numpy().reshape(-1, 9))}
+    leaf_of = np.array([leaf[r.tobytes()] for r in tri.reshape(-1, 9)] + [-1])
+    other = np.any(got.view(np.uint32) != want.view(np.uint32), axis=1)
+    assert other.mean() < 0.01
+    gt, wt = got[other, 0], want[other, 0]
+    assert ((gt < wt) | (gt == wt) & (leaf_of[got[other, 3].astype(int)] < leaf_of[want[other, 3].astype(int)])).all()
+    assert (wt - gt <= 4e-7 * wt).all()
+    assert not other[np.nonzero(part)[0] >= aimed].any()  # (none among the jittered rays)
+    # a packet with a lane from another point, or heading out of the grid, is the tree's
+    moved = o_all.reshape(n, 8, 3).copy()
+    moved[:, 5, 0] = np.nextafter(moved[:, 5, 0], np.float32(9.0))
+    moved_reach = reach.reshape(n, 8).copy()
+    moved_reach[:, 5] = 3.0e38
+    _, _, served_moved = _bins_against_tree(mesh, tree, rec, moved, d.reshape(n, 8, 3), moved_reach)
+    assert not served_moved.any()
+    away = d.reshape(n, 8, 3).copy()
+    away[:, 2] = (-w - 3.0 * u).astype(np.float32)
+    away_reach = reach.reshape(n, 8).copy()
+    away_reach[:, 2] = 1.0
+    _, _, served_away = _bins_against_tree(mesh, tree, rec, o_all.reshape(n, 8, 3), away, away_reach)
+    assert not served_away.any()
+
+
+def test_camera_bins_are_refused_for_triangles_behind_the_eye():
+    """An origin inside the mesh's hull (triangles behind or beside it) gets no bins."""
+    v, f, mesh, tree = _bins_mesh()
+    assert accel.camera_bins(tree.tris, np.zeros(3, np.float32), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 0.5, 0.5, 0.01,
+                             (v.min(0), v.max(0))) is None
+
+
+def _bins(renderer):
+    return int(renderer.built.data.insts.numpy()["bins"][0])
+
+
+def test_renders_through_camera_bins_are_the_trees_and_follow_the_view(monkeypatch):
+    """A renderer gives a large mesh (``accel.BINS_TRIANGLES``) the camera's bins with the scene
+    (``build.DeviceScene.refresh_bins``), and the image is the one the tree gives, bit for bit, for
+    a translated instance too. A new camera drops them until its view has been rendered
+    ``BINS_AFTER_RENDERS`` times; moved points drop them (their lists would hold the old
+    triangles), and the image stays the tree's. A camera with a lens or in motion, an instance that
+    moves, turns or scales, or camera rays that start past the eye get none."""
+    monkeypatch.setattr(accel, "BINS_TRIANGLES", 1024)
+    scene = _balls_scene()
+    mesh = dataclasses.replace(scene.shapes[1], transform=warprt.Transform(translate=(0.3, -0.1, -0.2)))
+    scene = scene.replace(shapes=(scene.shapes[0], mesh))
+    r = warprt.Renderer(scene, device="cpu")
+    assert _bins(r) != 0
+    with_bins, without = _with_and_without(r, "bins", 4)
+    assert with_bins.tobytes() == without.tobytes()
+    assert float(without[..., 0].std()) > 0.01
+    r.set_camera(dataclasses.replace(scene.camera, eye=(0.9, 1.2, 2.9)))
+    assert _bins(r) == 0
+    first = r.render(spp=4, seed=3, progress=False).image
+    r.render(spp=1, seed=3, progress=False)
+    assert _bins(r) == 0
+    with_bins = r.render(spp=4, seed=3, progress=False).image  # (the third render of the view: its bins)
+    assert _bins(r) != 0 and with_bins.tobytes() == first.tobytes()
+    v = np.asarray(mesh.vertices, np.float32)
+    r.set_mesh_points(1, v * np.float32(1.1))
+    assert _bins(r) == 0
+    moved = r.render(spp=4, seed=3, progress=False).image
+    fresh = warprt.Renderer(scene.replace(camera=r.scene.camera, shapes=(
+        scene.shapes[0], dataclasses.replace(mesh, vertices=v * np.float32(1.1)))), device="cpu")
+    rows = fresh.built.data.insts.numpy()
+    assert rows["bins"][0] != 0
+    rows["bins"] = 0
+    fresh.built.data.insts.assign(rows)
+    assert fresh.render(spp=4, seed=3, progress=False).image.tobytes() == moved.tobytes() != first.tobytes()
+    cam = scene.camera
+    for name, changed in (
+            ("a lens", scene.replace(camera=dataclasses.replace(cam, aperture=0.05, focus_distance=3.0))),
+            ("a moving camera", scene.replace(camera=dataclasses.replace(cam, eye_end=(0.1, 1.6, 3.2)))),
+            ("t_min", scene.with_settings(t_min=1e-3)),
+            ("a moving instance", scene.replace(shapes=(scene.shapes[0], dataclasses.replace(
+                mesh, transform_end=warprt.Transform(translate=(0.4, -0.1, -0.2)))))),
+            ("a turned instance", scene.replace(shapes=(scene.shapes[0], dataclasses.replace(
+                mesh, transform=warprt.Transform(rotate=(0.0, 20.0, 0.0)))))),
+            ("a scaled instance", scene.replace(shapes=(scene.shapes[0], dataclasses.replace(
+                mesh, transform=warprt.Transform(scale=1.1))))),
+            ("an eye inside", scene.replace(camera=dataclasses.replace(cam, eye=(0.3, 0.0, -0.2))))):
+        built = DeviceScene(changed, r.device)  # (the scene as a renderer builds it, without its kernel)
+        built.refresh_bins()
+        assert int(built.data.insts.numpy()["bins"][0]) == 0, name
+    monkeypatch.setattr(accel, "BINS_TRIANGLES", 1281)
+    assert _bins(warprt.Renderer(scene, device="cpu")) == 0  # (1280 triangles)
+
+
+def test_camera_bins_hold_a_triangle_whose_corner_lies_on_a_cells_border():
+    """Rays aimed exactly at a triangle's corner placed on a border between cells, the triangle
+    reaching away from it on one side: the ray's cell, computed in float32 from its direction,
+    can fall on the other side of the border than the corner's in float64; the padding of the
+    projected boxes keeps the triangle in both cells, so the bins still give the tree's hit."""
+    o = np.zeros(3, np.float32)
+    fwd, up = np.array([0.31, -0.17, -1.0]), (0.0, 1.0, 0.0)
+    tan_x, tan_y, cell = 0.5, 0.4, 0.4 / 48
+    view = np.array([[-9.0, -9.0, -6.0], [9.0, -9.0, -6.0], [0.0, 9.0, -6.0]], np.float32)
+    probe = wp.array(view.reshape(-1), dtype=wp.float32, device="cpu")
+    head = accel.camera_bins(probe, o, fwd, up, tan_x, tan_y, cell, (view.min(0) * 2, view.max(0) * 2))
+    U, V, F = (head[k:k + 3].astype(np.float64) for k in (3, 6, 9))
+    g0a, g0b, inv = (float(x) for x in head[12:15])
+    nx, ny = (int(x) for x in head.view(np.int32)[15:17])
+    rng = np.random.default_rng(11)
+    n = 512
+    m = rng.integers(4, nx - 4, n)
+    side = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)  # the triangle to the right of the border, or left
+    border = g0a + m / inv
+    b = g0b + rng.uniform(4.0, ny - 4.0, n) / inv
+    corner = (2.0 * (F + border[:, None] * U + b[:, None] * V)).astype(np.float32)  # (2·d exactly on the ray d)
+    reach_out = (corner.astype(np.float64) + side[:, None] * 0.01 * U).astype(np.float32)
+    tri = np.stack([corner, reach_out + (0.004 * V).astype(np.float32), reach_out - (0.004 * V).astype(np.float32)], 1)
+    v = tri.reshape(-1, 3)
+    f = np.arange(3 * n, dtype=np.int32).reshape(n, 3)
+    mesh = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
+    tree = accel.MeshTree(mesh, n)
+    rec = accel.camera_bins(tree.tris, o, fwd, up, tan_x, tan_y, cell, (view.min(0) * 2, view.max(0) * 2))
+    assert rec is not None and np.array_equal(rec[:15], head[:15]) and np.array_equal(rec[15:17], head[15:17])
+    d = corner * np.float32(0.5)
+    via_bins, via_tree, served = _bins_against_tree(mesh, tree, rec, np.zeros((n // 8, 8, 3), np.float32),
+                                                    d.reshape(-1, 8, 3), np.full((n // 8, 8), 3.0e38, np.float32))
+    assert served.all()
+    assert (via_tree[..., 3] >= 0).mean() > 0.9  # (the rays meet their corners)
+    np.testing.assert_array_equal(via_bins.view(np.uint32), via_tree.view(np.uint32))
+
+
+def test_camera_bins_keep_to_their_memory_caps(monkeypatch):
+    """A grid of more than ``accel.BINS_MAX_CELLS`` cells gets larger cells, and the bins still
+    give the tree's hits; projected boxes covering more than ``BINS_MAX_ENTRIES`` cells in all
+    get no bins (a large image, or large triangles against the cells)."""
+    v, f, mesh, tree = _bins_mesh()
+    o = np.asarray((0.4, 0.9, 3.4), np.float32)
+    fwd = -o.astype(np.float64)
+    args = (tree.tris, o, fwd, (0.0, 1.0, 0.0), 0.6, 0.45, 0.45 / 48, (v.min(0), v.max(0)))
+    full = accel.camera_bins(*args)
+    nx, ny = full.view(np.int32)[15:17]
+    monkeypatch.setattr(accel, "BINS_MAX_CELLS", 400)
+    small = accel.camera_bins(*args)
+    sx, sy = small.view(np.int32)[15:17]
+    assert nx * ny > 4000 and 300 < sx * sy <= 450
+    rng = np.random.default_rng(2)
+    d = (v[rng.integers(0, len(v), 2048)] + rng.normal(0, 0.05, (2048, 3)).astype(np.float32) - o).astype(np.float32)
+    via_bins, via_tree, served = _bins_against_tree(mesh, tree, small, np.broadcast_to(o, d.shape).reshape(-1, 8, 3),
+                                                    d.reshape(-1, 8, 3), np.full((256, 8), 3.0e38, np.float32))
+    assert served.all() and (via_tree[..., 3] >= 0).mean() > 0.5
+    np.testing.assert_array_equal(via_bins[..., 0].view(np.uint32), via_tree[..., 0].view(np.uint32))
+    entries = len(full) - full.view(np.int32)[17]
+    monkeypatch.setattr(accel, "BINS_MAX_CELLS", 1 << 22)
+    monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", entries // 2)
+    assert accel.camera_bins(*args) is None
+    monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", entries)
+    assert accel.camera_bins(*args) is not None

@@ -19,6 +19,7 @@ with the same number of nodes (n − 1 for n primitives), so world w's root is w
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -604,7 +605,7 @@ class MeshTree:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
                     wide=self.wide.ptr, balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr,
-                    cones=0, wide_cones=0, shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES))
+                    cones=0, wide_cones=0, shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES), bins=0)
 
     def ball_fields(self) -> dict:
         """The instance record's fields for shadow rays from outside the solid: its interior balls
@@ -617,7 +618,7 @@ class MeshTree:
 
 
 NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, wide=0, balls=0, n_balls=0, escape=0, cones=0,
-               wide_cones=0, shadow_packets=0)
+               wide_cones=0, shadow_packets=0, bins=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -1883,3 +1884,280 @@ def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64,
     """Each lane's nearest triangle of mesh ``mid`` in [0, t_max] (t -1 and face -1 for none; see
     above); 0 where the lanes must go one by one instead (``mesh_tree_ray``), 1 when done."""
     ...
+
+
+# Screen-space bins for camera rays (``camera_bins``): seen from one point (a pinhole camera's
+# eye in the mesh's object space), each cell of a grid over the tangent plane (BINS_PER_PIXEL
+# cells along a pixel's side) lists the triangles whose projected box, padded for rounding,
+# covers it and whose projection comes within that padding of it, nearest first by their least
+# depth. A ray from that point through a cell meets no triangle outside its list, and none whose
+# least depth lies past its nearest hit, so the walk down the list stops there. Each candidate
+# is tested as the packets' traversal tests it (``_WOOP`` with the lane's shear, an exact tie to
+# the lower leaf): a lane gets the tree's hit, except where two triangles meet the ray at the
+# same t or within rounding of it (a ray through a shared corner or edge) and rounding put the
+# farther one's box entry past that t, so that the tree's walk never tested the nearer one or
+# the lower leaf that the bins find (test_accel). For (d)'s 328k-triangle torus a camera ray
+# tests 3.2 triangles a lane against the packets' 20 wide node visits and 16 triangle tests a
+# packet: its camera rays alone take 0.77x the time (docs/benchmarks.md, levers).
+# The bins' record, float32 words: 0-2 the origin, 3-5 / 6-8 / 9-11 the axes U, V (tangent) and
+# F (forward, unit), 12-13 the grid's lower corner in tangent coordinates (a = U·d / F·d, b), 14
+# the cells per tangent unit, then as int32 words 15 nx, 16 ny, 17 the first entry's word; from
+# word BINS_HEAD the nx·ny + 1 cell offsets; the entries as (least depth, leaf position) pairs.
+BINS_HEAD = 20
+BINS_TRIANGLES = 65536  # meshes with this many triangles or more get bins (their trees are deep)
+BINS_PER_PIXEL = 2  # cells along a pixel's side (3 or 4: more entries, slower on (d))
+BINS_MAX_CELLS = 1 << 22  # a larger grid gets larger cells (16 MB of offsets)
+BINS_MAX_ENTRIES = 1 << 23  # projected boxes covering more cells than this (64 MB of entries): no bins
+BINS_AFTER_RENDERS = 2  # a changed view gets bins once rendered this many times (build.DeviceScene.rendering)
+_BINS_PACKET = _splice(r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+if (bins == 0) return 0;
+const float* B = (const float*)bins;
+const int* BI = (const int*)bins;
+const float* TR = (const float*)tris;
+const int nx = BI[15], ny = BI[16];
+const int* OFF = BI + BINS_HEAD;
+const float* EZ = B + BI[17];
+const int* EK = BI + BI[17];
+int cell[8];
+float reach[8];
+// every lane that takes part starts at the bins' origin and heads into the grid, or the tree
+// takes the packet
+for (int l = 0; l < 8; ++l) {
+    cell[l] = -1;
+    if (t_max[l] < 0.0f) continue;
+    if (ox[l] != B[0] || oy[l] != B[1] || oz[l] != B[2]) return 0;
+    const float dxl = dx[l], dyl = dy[l], dzl = dz[l];
+    const float w = dxl * B[9] + dyl * B[10] + dzl * B[11];
+    if (!(w > 0.0f)) return 0;
+    const float ca = ((dxl * B[3] + dyl * B[4] + dzl * B[5]) / w - B[12]) * B[14];
+    const float cb = ((dxl * B[6] + dyl * B[7] + dzl * B[8]) / w - B[13]) * B[14];
+    if (!(ca >= 0.0f && ca < (float)nx && cb >= 0.0f && cb < (float)ny)) return 0;
+    cell[l] = (int)cb * nx + (int)ca;
+    reach[l] = w * 1.00001f;  // a point at t lies at depth t·w: past bt·w (and rounding), past the hit
+}
+const wp::Mesh& mesh = *(const wp::Mesh*)mid;
+for (int l = 0; l < 8; ++l) {
+    if (cell[l] < 0) continue;
+    const float dxl = dx[l], dyl = dy[l], dzl = dz[l];
+    int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
+    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+    const float dk[3] = {dxl, dyl, dzl};
+    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+    const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
+    const float okk[3] = {ox[l], oy[l], oz[l]};
+    const float okx = okk[kx], oky = okk[ky], okz = okk[kz];
+    float bt = t_max[l], bu = 0.0f, bv = 0.0f;
+    int bh = -1;
+    auto tri_test = [&](int k) {
+@WOOP@
+        if (tt >= 0.0f && (tt < bt || (tt == bt && k < bh))) { bt = tt; bu = U * rcp; bv = V * rcp; bh = k; }
+    };
+    const float r = reach[l];
+    for (int j = OFF[cell[l]], e = OFF[cell[l] + 1]; j < e; ++j) {
+        if (EZ[2 * j] > bt * r) break;
+        tri_test(EK[2 * j + 1]);
+    }
+    if (bh >= 0) {
+        t[l] = bt; u[l] = bu; v[l] = bv;
+        const int f = mesh.bvh.primitive_indices[bh];
+        face[l] = f;
+        const int* ix = mesh.indices + 3 * f;  // (as mesh_tree_packet prefetches a large mesh's hits)
+        __builtin_prefetch(&mesh.points[ix[0]]); __builtin_prefetch(&mesh.points[ix[1]]);
+        __builtin_prefetch(&mesh.points[ix[2]]);
+    } else {
+        t[l] = -1.0f; face[l] = -1;
+    }
+}
+return 1;
+#else
+return 0;
+#endif
+""".replace("BINS_HEAD", str(BINS_HEAD)))
+
+
+@wp.func_native(_BINS_PACKET)
+def mesh_bins_packet(mid: wp.uint64, bins: wp.uint64, tris: wp.uint64,
+                     ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF,
+                     t: wp.ref[PacketF], u: wp.ref[PacketF], v: wp.ref[PacketF], face: wp.ref[PacketI]) -> int:
+    """``mesh_tree_packet``'s answer through the mesh's camera bins (see above); 0 where the
+    packet must go through the tree instead (no bins, a lane from elsewhere or outside the grid)."""
+    ...
+
+
+@wp.func
+def _bins_corner(tris: wp.array(dtype=wp.float32), i: int, j: int, o: wp.vec3d) -> wp.vec3d:
+    return wp.vec3d(wp.float64(tris[9 * i + 3 * j]), wp.float64(tris[9 * i + 3 * j + 1]),
+                    wp.float64(tris[9 * i + 3 * j + 2])) - o
+
+
+@wp.kernel(module="warprt_accel", enable_backward=False)
+def camera_bins_kernel(tris: wp.array(dtype=wp.float32), frame: wp.array(dtype=wp.vec3d), grid: wp.vec3d, nx: int,
+                       ny: int, fill: int, max_cells: int, counts: wp.array(dtype=wp.int32),
+                       depth: wp.array(dtype=wp.float32), leaf: wp.array(dtype=wp.int32), bad: wp.array(dtype=wp.int32)):
+    """``camera_bins``' cells of triangle i (frame: the origin, U, V, F; grid: its lower corner
+    (a, b) and cells per tangent unit): with ``fill`` 0 each cell's count, with 1 its entries
+    (``counts`` then the cells' next free entries). A CPU launch runs its triangles in order, so
+    each cell's entries come in leaf order. ``bad``: 1 where a triangle is not wholly in front, 2
+    where the boxes would cover more than ``max_cells`` cells (counted in bad[1]); later triangles stop."""
+    i = wp.tid()
+    if bad[0] != 0:
+        return
+    o, U, V, F = frame[0], frame[1], frame[2], frame[3]
+    p0 = _bins_corner(tris, i, 0, o)
+    p1 = _bins_corner(tris, i, 1, o)
+    p2 = _bins_corner(tris, i, 2, o)
+    z0, z1, z2 = wp.dot(p0, F), wp.dot(p1, F), wp.dot(p2, F)
+    zmin = wp.min(z0, wp.min(z1, z2))
+    far = wp.max(wp.length(p0), wp.max(wp.length(p1), wp.length(p2)))
+    if not (zmin > wp.float64(1.0e-4) * far):
+        bad[0] = 1
+        return
+    a0, a1, a2 = wp.dot(p0, U) / z0, wp.dot(p1, U) / z1, wp.dot(p2, U) / z2
+    b0, b1, b2 = wp.dot(p0, V) / z0, wp.dot(p1, V) / z1, wp.dot(p2, V) / z2
+    # padding: the float32 rounding of a ray's tangent coordinates and of the watertight test
+    mag = wp.float64(0.0)
+    for j in range(9):
+        mag = wp.max(mag, wp.abs(wp.float64(tris[9 * i + j])))
+    mag = mag + wp.max(wp.abs(o[0]), wp.max(wp.abs(o[1]), wp.abs(o[2])))
+    big = wp.max(wp.max(wp.abs(a0), wp.max(wp.abs(a1), wp.abs(a2))), wp.max(wp.abs(b0), wp.max(wp.abs(b1), wp.abs(b2))))
+    pad = wp.float64(1.0e-5) * (wp.float64(1.0) + wp.float64(2.0) * big) + wp.float64(1.0e-5) * mag / zmin
+    inv = grid[2]
+    x0 = wp.max(int(wp.floor((wp.min(a0, wp.min(a1, a2)) - pad - grid[0]) * inv)), 0)
+    x1 = wp.min(int(wp.floor((wp.max(a0, wp.max(a1, a2)) + pad - grid[0]) * inv)) + 1, nx)
+    y0 = wp.max(int(wp.floor((wp.min(b0, wp.min(b1, b2)) - pad - grid[1]) * inv)), 0)
+    y1 = wp.min(int(wp.floor((wp.max(b0, wp.max(b1, b2)) + pad - grid[1]) * inv)) + 1, ny)
+    if fill == 0:
+        box = wp.max(x1 - x0, 0) * wp.max(y1 - y0, 0)
+        if bad[1] + box > max_cells:
+            bad[0] = 2
+            return
+        bad[1] = bad[1] + box
+    area = (a1 - a0) * (b2 - b0) - (a2 - a0) * (b1 - b0)
+    sgn = wp.float64(1.0)
+    if area < wp.float64(0.0):
+        sgn = wp.float64(-1.0)
+    exact = wp.abs(area) > wp.float64(1.0e-12)
+    zlo = wp.float32(zmin * wp.float64(1.0 - 1.0e-6))  # rounded down: the walk never stops early
+    cell = wp.float64(1.0) / inv
+    for cy in range(y0, y1):
+        lb = grid[1] + wp.float64(cy) * cell
+        hb = lb + cell
+        for cx in range(x0, x1):
+            la = grid[0] + wp.float64(cx) * cell
+            ha = la + cell
+            inside = True
+            if exact:  # a cell wholly beyond one of the edges' lines (by more than the padding) is left out
+                for e in range(3):
+                    va, vb, wa, wb = a0, b0, a1, b1
+                    if e == 1:
+                        va, vb, wa, wb = a1, b1, a2, b2
+                    if e == 2:
+                        va, vb, wa, wb = a2, b2, a0, b0
+                    na = -(wb - vb) * sgn
+                    nb = (wa - va) * sgn
+                    most = wp.max(na * (la - va), na * (ha - va)) + wp.max(nb * (lb - vb), nb * (hb - vb))
+                    if most < -wp.float64(2.0) * pad * (wp.abs(na) + wp.abs(nb)):
+                        inside = False
+            if inside:
+                c = cy * nx + cx
+                if fill == 0:
+                    counts[c] = counts[c] + 1
+                else:
+                    at = counts[c]
+                    counts[c] = at + 1
+                    depth[at] = zlo
+                    leaf[at] = i
+
+
+@wp.kernel(module="warprt_accel", enable_backward=False)
+def camera_bins_sort_kernel(offsets: wp.array(dtype=wp.int32), depth: wp.array(dtype=wp.float32),
+                            leaf: wp.array(dtype=wp.int32)):
+    """Each cell's entries by least depth, nearest first (insertion: equal depths keep leaf order)."""
+    c = wp.tid()
+    for j in range(offsets[c] + 1, offsets[c + 1]):
+        z = depth[j]
+        k = leaf[j]
+        m = j - 1
+        while m >= offsets[c] and depth[m] > z:
+            depth[m + 1] = depth[m]
+            leaf[m + 1] = leaf[m]
+            m -= 1
+        depth[m + 1] = z
+        leaf[m + 1] = k
+
+
+def camera_bins(tris: "wp.array", origin, forward, up, tan_x: float, tan_y: float, cell: float,
+                box: tuple) -> np.ndarray | None:
+    """The bins' record (see above) of the triangles ``tris`` (float32 corners in leaf order, 9
+    a triangle, on the CPU) seen from ``origin`` (float32 object-space point) looking along
+    ``forward`` with ``up``, over the view's tangent rectangle [-tan_x, tan_x] × [-tan_y, tan_y]
+    in cells of ``cell`` tangent units; None where bins cannot serve (a triangle not wholly in
+    front of the origin, or nothing of the mesh's ``box`` (lo, hi) in view)."""
+    o32 = np.asarray(origin, np.float32)
+    f = np.asarray(forward, np.float64)
+    f = f / np.linalg.norm(f)
+    ux = np.cross(f, np.asarray(up, np.float64))
+    if not np.linalg.norm(ux) > 0:
+        return None
+    U32 = (ux / np.linalg.norm(ux)).astype(np.float32)
+    V64 = np.cross(U32.astype(np.float64), f)
+    V32 = (V64 / np.linalg.norm(V64)).astype(np.float32)
+    F32 = f.astype(np.float32)
+    U, V, F = (x.astype(np.float64) for x in (U32, V32, F32))
+    o = o32.astype(np.float64)
+    # the grid: the view's rectangle (two cells more each way), cut to the mesh's projected box
+    lo, hi = (np.asarray(x, np.float64) for x in box)
+    corners = np.array([[x, y, zz] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for zz in (lo[2], hi[2])]) - o
+    cz = corners @ F
+    g0a, g1a = -tan_x - 2 * cell, tan_x + 2 * cell
+    g0b, g1b = -tan_y - 2 * cell, tan_y + 2 * cell
+    if (cz > 0).all():
+        ca, cb = (corners @ U) / cz, (corners @ V) / cz
+        g0a, g1a = max(g0a, ca.min() - 2 * cell), min(g1a, ca.max() + 2 * cell)
+        g0b, g1b = max(g0b, cb.min() - 2 * cell), min(g1b, cb.max() + 2 * cell)
+    if not (g1a > g0a and g1b > g0b):
+        return None
+    cells = (g1a - g0a) * (g1b - g0b) / (cell * cell)
+    if cells > BINS_MAX_CELLS:  # (a large image: larger cells)
+        cell *= math.sqrt(cells / BINS_MAX_CELLS)
+    inv = np.float32(1.0 / cell)
+    g0a32, g0b32 = np.float32(g0a), np.float32(g0b)
+    nx = int(math.ceil((g1a - float(g0a32)) * float(inv)))
+    ny = int(math.ceil((g1b - float(g0b32)) * float(inv)))
+    dev = tris.device
+    if not dev.is_cpu:  # (the kernels count and fill in one thread's order: CPU launches only)
+        return None
+    n = tris.shape[0] // 9
+    frame = wp.array(np.array([o, U, V, F]), dtype=wp.vec3d, device=dev)
+    grid = wp.vec3d(float(g0a32), float(g0b32), float(inv))
+    counts = wp.zeros(nx * ny, dtype=wp.int32, device=dev)
+    bad = wp.zeros(2, dtype=wp.int32, device=dev)
+    none_f, none_i = wp.zeros(1, dtype=wp.float32, device=dev), wp.zeros(1, dtype=wp.int32, device=dev)
+    args = [tris, frame, grid, nx, ny]
+    wp.launch(camera_bins_kernel, dim=n, device=dev, inputs=[*args, 0, BINS_MAX_ENTRIES, counts, none_f, none_i, bad])
+    if bad.numpy()[0]:
+        return None
+    offs = np.zeros(nx * ny + 1, np.int64)
+    np.cumsum(counts.numpy(), out=offs[1:])
+    total = int(offs[-1])
+    offs = offs.astype(np.int32)
+    depth = wp.zeros(max(total, 1), dtype=wp.float32, device=dev)
+    leaf = wp.zeros(max(total, 1), dtype=wp.int32, device=dev)
+    counts.assign(offs[:-1])
+    wp.launch(camera_bins_kernel, dim=n, device=dev, inputs=[*args, 1, BINS_MAX_ENTRIES, counts, depth, leaf, bad])
+    offsets = wp.array(offs, dtype=wp.int32, device=dev)
+    wp.launch(camera_bins_sort_kernel, dim=nx * ny, device=dev, inputs=[offsets, depth, leaf])
+    first = BINS_HEAD + nx * ny + 1
+    first += first & 1
+    rec = np.zeros(first + 2 * total, np.float32)
+    head = rec[:BINS_HEAD]
+    head[0:3], head[3:6], head[6:9], head[9:12] = o32, U32, V32, F32
+    head[12], head[13], head[14] = g0a32, g0b32, inv
+    ints = rec.view(np.int32)
+    ints[15], ints[16], ints[17] = nx, ny, first
+    ints[BINS_HEAD:BINS_HEAD + nx * ny + 1] = offs
+    pairs = rec[first:].reshape(-1, 2)
+    pairs[:, 0] = depth.numpy()[:total]
+    pairs.view(np.int32)[:, 1] = leaf.numpy()[:total]
+    return rec

@@ -18,7 +18,8 @@ import warnings
 import numpy as np
 import warp as wp
 
-from .accel import NO_TREE, BvhNode, MeshTree, build_tree, forest_nodes
+from . import accel
+from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes
 from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
@@ -144,6 +145,8 @@ class DeviceScene:
             wp.launch(instance_box_kernel(), dim=len(ins), inputs=[d.insts], device=dev)
         self.data = d
         self.refresh_balls()
+        self._bins: list = []  # the camera bins' arrays the instance records point to (refresh_bins)
+        self._view_renders = 0  # renders since the camera or the points last changed (rendering)
         d.normals = wp.array(np.concatenate(normals) if normals else np.zeros((1, 3), np.float32),
                              dtype=wp.vec3, device=dev)
         d.mats = table(MatRec, [dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
@@ -214,6 +217,60 @@ class DeviceScene:
             self._balls_given |= fields["n_balls"] > 0 or fields["cones"] != 0
         d.insts.assign(rows)
 
+    def refresh_bins(self) -> None:
+        """Give each large mesh instance (``accel.BINS_TRIANGLES`` triangles or more) the camera's
+        screen-space bins of its triangles (``accel.camera_bins``), where every camera ray starts
+        at the eye: a pinhole camera at rest, camera rays from t = 0, an instance at rest that
+        neither rotates nor scales. They give the tree's hits (the same images; see ``accel``) in
+        less time; a renderer builds them with the scene, and after a change of camera or points
+        once the new view has been rendered ``accel.BINS_AFTER_RENDERS`` times (``rendering``): a
+        camera or mesh that moves every frame never pays for them."""
+        d = self.data
+        self._view_renders = accel.BINS_AFTER_RENDERS + 1  # (built: not again until the view changes)
+        if d.n_inst == 0 or not self.device.is_cpu:
+            return
+        cam, rs = self.scene.camera, self.scene.render
+        rows = d.insts.numpy()
+        had = bool(self._bins)
+        self._bins = []
+        still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0
+        tan_y = math.tan(math.radians(cam.fov) / 2.0)
+        identity = np.array([0.0, 0.0, 0.0, 1.0], np.float32)
+        for i, key in enumerate(self.instance_assets):
+            rows["bins"][i] = 0
+            tree, r = self.assets[key][2], rows[i]
+            if (not still or tree is None or not tree.usable or tree.n_faces < accel.BINS_TRIANGLES
+                    or np.any(r["pos0"] != r["pos1"]) or np.any(r["rot0"] != identity) or np.any(r["rot1"] != identity)
+                    or np.any(r["scl0"] != 1.0) or np.any(r["scl1"] != 1.0)):
+                continue
+            # the origin as the kernel computes a camera ray's in object space (trace.to_object)
+            origin = np.asarray(cam.eye, np.float32) - r["pos0"]
+            rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_y * cam.aspect, tan_y,
+                              2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]))
+            if rec is None:
+                continue
+            arr = wp.array(rec, dtype=wp.float32, device=self.device)
+            self._bins.append(arr)
+            rows["bins"][i] = arr.ptr
+        if self._bins or had:
+            d.insts.assign(rows)
+
+    def drop_bins(self) -> None:
+        """The view changed (camera or points): no bins until it has been rendered
+        ``accel.BINS_AFTER_RENDERS`` times (``refresh_bins``)."""
+        self._view_renders = 0
+        if self._bins:
+            rows = self.data.insts.numpy()
+            rows["bins"] = 0
+            self.data.insts.assign(rows)
+            self._bins = []
+
+    def rendering(self) -> None:
+        """A render starts: a changed view gets its bins before its ``BINS_AFTER_RENDERS + 1``-th."""
+        self._view_renders += 1
+        if self._view_renders == accel.BINS_AFTER_RENDERS + 1:
+            self.refresh_bins()
+
     def set_mesh_points(self, shape_index: int, points) -> None:
         """Move the vertices of the mesh asset behind ``scene.shapes[shape_index]`` (every
         instance of that asset follows) and refit its BVH; smooth normals are recomputed."""
@@ -231,6 +288,7 @@ class DeviceScene:
         if tree is not None:
             tree.refresh()  # same topology and root: the instance records stay valid
         wp.launch(instance_box_kernel(), dim=self.data.n_inst, inputs=[self.data.insts], device=self.device)
+        self.drop_bins()  # (the triangles moved)
         if tree is not None and (tree.balls is not None or tree.escape is not None or tree.cones is not None):
             tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
             tree.escape = None  # nor its escape horizons

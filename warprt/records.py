@@ -183,6 +183,7 @@ class InstRec:
     cones: wp.uint64  # the asset's normal cones (accel.normal_cones) while shadow rays may use them
     wide_cones: wp.uint64  # the same in the wide tree's layout (0 with cones 0)
     shadow_packets: int  # 1: a camera packet's shadow rays go through the tree together (accel.SHADOW_PACKET_TRIANGLES)
+    bins: wp.uint64  # the camera's screen-space bins of the asset's triangles (accel.camera_bins; 0: none)
 
 
 @wp.struct

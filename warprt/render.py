@@ -251,6 +251,7 @@ class Renderer:
         self.packets = packets_for(self.device) if packets is None else packets
         self.scene = scene
         self.built = DeviceScene(scene, self.device)
+        self.built.refresh_bins()  # (the camera's bins of large meshes, built with the scene)
         self.features = self.built.features if features is None else self.built.features.union(features)
         self.kernel = kernels_for(self.features, self.packets).render
         self._loaded = None  # the kernel loaded on the device by compile()
@@ -284,6 +285,7 @@ class Renderer:
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
         self.built.refresh_balls()  # the interior balls' rule looks at where the camera is
+        self.built.drop_bins()  # and the bins are the camera's view
         self._light_samples = None  # what the camera sees changes the split
         self._sample_time.clear()  # and the time per sample
         if camera.moves and not self.features.motion or camera.aperture > 0 and not self.features.lens:
@@ -430,6 +432,7 @@ class Renderer:
                 self.compile()
                 self._loaded = self.kernel
             self.light_samples(int(workers))  # samples = "auto": chosen once, then set for every render
+            self.built.rendering()  # (a view rendered often enough gets its bins)
             # (None: the CPU workers claim blocks of rows; see the module docstring)
             n_slices = (None if slices is None else int(slices)) if dev.is_cpu else 1
             run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop)

@@ -22,8 +22,8 @@ import warp as wp
 
 from .accel import (
     PACKET, PACKET_MISS, SHADOW_PACKET_MIN, PacketF, PacketI, StackDist, StackRefs, horizon_escapes, lane, lane_i,
-    mesh_balls_hit, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet, mesh_tree_ray, packet_node,
-    safe_inverse, slab,
+    mesh_balls_hit, mesh_bins_packet, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet, mesh_tree_ray,
+    packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
@@ -546,9 +546,10 @@ def make_trace(F: Features) -> SimpleNamespace:
     def mesh_packet(scene: SceneData, pk: CameraPacket, t_min: float, lanes: int) -> MeshPacket:
         """``mesh_nearest`` for the first ``lanes`` rays of a camera packet at once, each bounded as
         ``finish_hit`` bounds it (its analytic hit, less the TIE band): per instance, the lanes
-        whose ray meets its box go through its tree together (``accel.mesh_tree_packet``, the
-        same nearest triangle per lane as alone). A lane whose triangle is the one its ray leaves
-        (or at t = 0), or a packet the tree cannot take, goes through ``mesh_first_hit`` alone."""
+        whose ray meets its box go through its camera bins (``accel.mesh_bins_packet``) or its
+        tree (``accel.mesh_tree_packet``) together, the same nearest triangle per lane as alone. A
+        lane whose triangle is the one its ray leaves (or at t = 0), or a packet the tree cannot
+        take, goes through ``mesh_first_hit`` alone."""
         mp = MeshPacket()
         bound = PacketF()  # each lane's search bound: its nearest hit so far
         for k in range(PACKET):
@@ -595,8 +596,11 @@ def make_trace(F: Features) -> SimpleNamespace:
             qu = PacketF()
             qv = PacketF()
             qf = PacketI()
-            done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].wide, scene.insts[i].tree_tris, ox, oy, oz,
+            done = mesh_bins_packet(scene.insts[i].mesh, scene.insts[i].bins, scene.insts[i].tree_tris, ox, oy, oz,
                                     dx, dy, dz, reach, qt, qu, qv, qf)
+            if done == 0:
+                done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].wide, scene.insts[i].tree_tris, ox, oy,
+                                        oz, dx, dy, dz, reach, qt, qu, qv, qf)
             for k in range(lanes):
                 if reach[k] < 0.0:
                     continue
