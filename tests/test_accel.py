@@ -1625,13 +1625,15 @@ def _bins_mesh():
 
 def _bins_against_tree(mesh, tree, rec, o, d, reach):
     """Each lane's (t, u, v, face) through the bins (``accel.mesh_bins_packet``) and through the
-    tree (``mesh_tree_packet``), packets of 8 rays, and whether the bins served each packet."""
+    tree (``mesh_tree_packet``), packets of 8 rays, and whether the bins served each packet; each
+    lane's ray alone through ``mesh_bins_ray`` is checked against them (``rays_served``: how many
+    it served)."""
 
     @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
     def k(mid: wp.uint64, bins: wp.uint64, wide: wp.uint64, tris: wp.uint64, o: wp.array(dtype=wp.vec3, ndim=2),
           d: wp.array(dtype=wp.vec3, ndim=2), reach: wp.array(dtype=float, ndim=2),
           via_bins: wp.array(dtype=wp.vec4, ndim=2), via_tree: wp.array(dtype=wp.vec4, ndim=2),
-          served: wp.array(dtype=int)):
+          served: wp.array(dtype=int), ray_bad: wp.array(dtype=int), ray_served: wp.array(dtype=int)):
         i = wp.tid()
         ox = accel.PacketF()
         oy = accel.PacketF()
@@ -1662,14 +1664,29 @@ def _bins_against_tree(mesh, tree, rec, o, d, reach):
             if tm[l] >= 0.0:
                 via_bins[i, l] = wp.vec4(bt[l], bu[l], bv[l], float(bf[l]))
                 via_tree[i, l] = wp.vec4(tt[l], tu[l], tv[l], float(tf[l] + (1 - done) * 100000))
+                # the one-ray walk (``mesh_bins_ray``): a served packet's lane bit for bit; in another
+                # packet, not served (t -2) or the tree's t, give or take a tie's rounding
+                q = accel.mesh_bins_ray(mid, bins, tris, wp.vec3(ox[l], oy[l], oz[l]), wp.vec3(dx[l], dy[l], dz[l]),
+                                        tm[l])
+                if served[i] != 0:
+                    if q[0] != bt[l] or (q[0] >= 0.0 and (q[1] != bu[l] or q[2] != bv[l]
+                                                          or int(q[3]) * 4096 + int(q[4]) != bf[l])):
+                        ray_bad[i] = ray_bad[i] + 1
+                    ray_served[i] = ray_served[i] + 1
+                elif q[0] != -2.0:
+                    if wp.abs(q[0] - tt[l]) > 4.0e-7 * wp.abs(tt[l]):
+                        ray_bad[i] = ray_bad[i] + 1
+                    ray_served[i] = ray_served[i] + 1
 
     n = len(o)
     arrays = [wp.array(x, dtype=dt, device="cpu") for x, dt in ((o, wp.vec3), (d, wp.vec3), (reach, float))]
     via_bins, via_tree = wp.zeros((n, 8), dtype=wp.vec4, device="cpu"), wp.zeros((n, 8), dtype=wp.vec4, device="cpu")
-    served = wp.zeros(n, dtype=int, device="cpu")
+    served, ray_bad, ray_served = (wp.zeros(n, dtype=int, device="cpu") for _ in range(3))
     bins = wp.array(rec, dtype=wp.float32, device="cpu") if rec is not None else None
     wp.launch(k, dim=n, device="cpu", inputs=[mesh.id, 0 if bins is None else bins.ptr, tree.wide.ptr, tree.tris.ptr,
-                                              *arrays, via_bins, via_tree, served])
+                                              *arrays, via_bins, via_tree, served, ray_bad, ray_served])
+    assert not ray_bad.numpy().any()
+    _bins_against_tree.rays_served = int(ray_served.numpy().sum())
     return via_bins.numpy(), via_tree.numpy(), served.numpy().astype(bool)
 
 
@@ -1737,6 +1754,10 @@ def test_camera_bins_give_each_lane_the_trees_hit_bit_for_bit(eye):
     moved_reach[:, 5] = 3.0e38
     _, _, served_moved = _bins_against_tree(mesh, tree, rec, moved, d.reshape(n, 8, 3), moved_reach)
     assert not served_moved.any()
+    assert _bins_against_tree.rays_served > 0  # (alone, the lanes still at the origin are served)
+    moved[:] = np.nextafter(o, np.float32(9.0))
+    _bins_against_tree(mesh, tree, rec, moved, d.reshape(n, 8, 3), reach.reshape(n, 8))
+    assert _bins_against_tree.rays_served == 0
     away = d.reshape(n, 8, 3).copy()
     away[:, 2] = (-w - 3.0 * u).astype(np.float32)
     away_reach = reach.reshape(n, 8).copy()
@@ -1769,9 +1790,13 @@ def test_renders_through_camera_bins_are_the_trees_and_follow_the_view(monkeypat
     scene = scene.replace(shapes=(scene.shapes[0], mesh))
     r = warprt.Renderer(scene, device="cpu")
     assert _bins(r) != 0
+    names = ["depth", "normal", "object_id"]  # (the AOVs' camera rays go one by one: accel.mesh_bins_ray)
+    aovs = r.render(spp=2, seed=3, progress=False, aovs=names).aovs
     with_bins, without = _with_and_without(r, "bins", 4)
     assert with_bins.tobytes() == without.tobytes()
     assert float(without[..., 0].std()) > 0.01
+    aovs_tree = r.render(spp=2, seed=3, progress=False, aovs=names).aovs
+    assert all(aovs[n].tobytes() == aovs_tree[n].tobytes() for n in names) and (aovs["object_id"] == 1).any()
     r.set_camera(dataclasses.replace(scene.camera, eye=(0.9, 1.2, 2.9)))
     assert _bins(r) == 0
     first = r.render(spp=4, seed=3, progress=False).image

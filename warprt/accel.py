@@ -1909,9 +1909,8 @@ BINS_PER_PIXEL = 2  # cells along a pixel's side (3 or 4: more entries, slower o
 BINS_MAX_CELLS = 1 << 22  # a larger grid gets larger cells (16 MB of offsets)
 BINS_MAX_ENTRIES = 1 << 23  # projected boxes covering more cells than this (64 MB of entries): no bins
 BINS_AFTER_RENDERS = 2  # a changed view gets bins once rendered this many times (build.DeviceScene.rendering)
-_BINS_PACKET = _splice(r"""
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
-if (bins == 0) return 0;
+# the bins' record (``bins``) and the triangles in leaf order (``tris``) for the walks below
+_BINS_RECORD = r"""
 const float* B = (const float*)bins;
 const int* BI = (const int*)bins;
 const float* TR = (const float*)tris;
@@ -1919,6 +1918,47 @@ const int nx = BI[15], ny = BI[16];
 const int* OFF = BI + BINS_HEAD;
 const float* EZ = B + BI[17];
 const int* EK = BI + BI[17];
+""".replace("BINS_HEAD", str(BINS_HEAD))
+# a ray's cell (its origin ol0..ol2, direction dl0..dl2): ``cl`` -1 where the bins cannot serve
+# it (another origin, a direction off the grid), and ``rl``, the depth of t = 1 along it
+_BINS_CELL = r"""
+        int cl = -1;
+        float rl = 0.0f;
+        if (ol0 == B[0] && ol1 == B[1] && ol2 == B[2]) {
+            const float w = dl0 * B[9] + dl1 * B[10] + dl2 * B[11];
+            const float ca = ((dl0 * B[3] + dl1 * B[4] + dl2 * B[5]) / w - B[12]) * B[14];
+            const float cb = ((dl0 * B[6] + dl1 * B[7] + dl2 * B[8]) / w - B[13]) * B[14];
+            if (w > 0.0f && ca >= 0.0f && ca < (float)nx && cb >= 0.0f && cb < (float)ny) {
+                cl = (int)cb * nx + (int)ca;
+                rl = w * 1.00001f;  // a point at t lies at depth t·w: past bt·w (and rounding), past the hit
+            }
+        }
+"""
+# the walk down cell cl's list for the ray (ol0..ol2, dl0..dl2) from bt (its reach): the nearest
+# triangle (bt, bu, bv; leaf position bh, -1 for none), by the packets' test and tie rule
+_BINS_WALK = _splice(r"""
+        int kz = fabsf(dl0) > fabsf(dl1) ? (fabsf(dl0) > fabsf(dl2) ? 0 : 2) : (fabsf(dl1) > fabsf(dl2) ? 1 : 2);
+        int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+        const float dk[3] = {dl0, dl1, dl2};
+        if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
+        const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
+        const float okk[3] = {ol0, ol1, ol2};
+        const float okx = okk[kx], oky = okk[ky], okz = okk[kz];
+        float bu = 0.0f, bv = 0.0f;
+        int bh = -1;
+        auto tri_test = [&](int k) {
+@WOOP@
+            if (tt >= 0.0f && (tt < bt || (tt == bt && k < bh))) { bt = tt; bu = U * rcp; bv = V * rcp; bh = k; }
+        };
+        for (int j = OFF[cl], e = OFF[cl + 1]; j < e; ++j) {
+            if (EZ[2 * j] > bt * rl) break;
+            tri_test(EK[2 * j + 1]);
+        }
+""")
+_BINS_PACKET = r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+if (bins == 0) return 0;
+@RECORD@
 int cell[8];
 float reach[8];
 // every lane that takes part starts at the bins' origin and heads into the grid, or the tree
@@ -1926,54 +1966,72 @@ float reach[8];
 for (int l = 0; l < 8; ++l) {
     cell[l] = -1;
     if (t_max[l] < 0.0f) continue;
-    if (ox[l] != B[0] || oy[l] != B[1] || oz[l] != B[2]) return 0;
-    const float dxl = dx[l], dyl = dy[l], dzl = dz[l];
-    const float w = dxl * B[9] + dyl * B[10] + dzl * B[11];
-    if (!(w > 0.0f)) return 0;
-    const float ca = ((dxl * B[3] + dyl * B[4] + dzl * B[5]) / w - B[12]) * B[14];
-    const float cb = ((dxl * B[6] + dyl * B[7] + dzl * B[8]) / w - B[13]) * B[14];
-    if (!(ca >= 0.0f && ca < (float)nx && cb >= 0.0f && cb < (float)ny)) return 0;
-    cell[l] = (int)cb * nx + (int)ca;
-    reach[l] = w * 1.00001f;  // a point at t lies at depth t·w: past bt·w (and rounding), past the hit
+    {
+        const float ol0 = ox[l], ol1 = oy[l], ol2 = oz[l], dl0 = dx[l], dl1 = dy[l], dl2 = dz[l];
+@CELL@
+        if (cl < 0) return 0;
+        cell[l] = cl;
+        reach[l] = rl;
+    }
 }
 const wp::Mesh& mesh = *(const wp::Mesh*)mid;
 for (int l = 0; l < 8; ++l) {
     if (cell[l] < 0) continue;
-    const float dxl = dx[l], dyl = dy[l], dzl = dz[l];
-    int kz = fabsf(dxl) > fabsf(dyl) ? (fabsf(dxl) > fabsf(dzl) ? 0 : 2) : (fabsf(dyl) > fabsf(dzl) ? 1 : 2);
-    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-    const float dk[3] = {dxl, dyl, dzl};
-    if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
-    const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
-    const float okk[3] = {ox[l], oy[l], oz[l]};
-    const float okx = okk[kx], oky = okk[ky], okz = okk[kz];
-    float bt = t_max[l], bu = 0.0f, bv = 0.0f;
-    int bh = -1;
-    auto tri_test = [&](int k) {
-@WOOP@
-        if (tt >= 0.0f && (tt < bt || (tt == bt && k < bh))) { bt = tt; bu = U * rcp; bv = V * rcp; bh = k; }
-    };
-    const float r = reach[l];
-    for (int j = OFF[cell[l]], e = OFF[cell[l] + 1]; j < e; ++j) {
-        if (EZ[2 * j] > bt * r) break;
-        tri_test(EK[2 * j + 1]);
-    }
-    if (bh >= 0) {
-        t[l] = bt; u[l] = bu; v[l] = bv;
-        const int f = mesh.bvh.primitive_indices[bh];
-        face[l] = f;
-        const int* ix = mesh.indices + 3 * f;  // (as mesh_tree_packet prefetches a large mesh's hits)
-        __builtin_prefetch(&mesh.points[ix[0]]); __builtin_prefetch(&mesh.points[ix[1]]);
-        __builtin_prefetch(&mesh.points[ix[2]]);
-    } else {
-        t[l] = -1.0f; face[l] = -1;
+    {
+        const float ol0 = ox[l], ol1 = oy[l], ol2 = oz[l], dl0 = dx[l], dl1 = dy[l], dl2 = dz[l];
+        const int cl = cell[l];
+        const float rl = reach[l];
+        float bt = t_max[l];
+@WALK@
+        if (bh >= 0) {
+            t[l] = bt; u[l] = bu; v[l] = bv;
+            const int f = mesh.bvh.primitive_indices[bh];
+            face[l] = f;
+            const int* ix = mesh.indices + 3 * f;  // (as mesh_tree_packet prefetches a large mesh's hits)
+            __builtin_prefetch(&mesh.points[ix[0]]); __builtin_prefetch(&mesh.points[ix[1]]);
+            __builtin_prefetch(&mesh.points[ix[2]]);
+        } else {
+            t[l] = -1.0f; face[l] = -1;
+        }
     }
 }
 return 1;
 #else
 return 0;
 #endif
-""".replace("BINS_HEAD", str(BINS_HEAD)))
+""".replace("@RECORD@\n", _BINS_RECORD.lstrip("\n")).replace("@CELL@\n", _BINS_CELL.lstrip("\n")).replace(
+    "@WALK@\n", _BINS_WALK.lstrip("\n"))
+# ``mesh_tree_ray``'s answer for one ray through the bins: t -2 where they cannot serve it
+_BINS_RAY = r"""
+wp::vec_t<5, wp::float32> out;
+out[0] = -2.0f;
+#if !defined(__CUDA_ARCH__)
+if (bins != 0) {
+@RECORD@
+    const float ol0 = o[0], ol1 = o[1], ol2 = o[2], dl0 = d[0], dl1 = d[1], dl2 = d[2];
+@CELL@
+    if (cl >= 0) {
+        float bt = t_max;
+@WALK@
+        out[0] = -1.0f;
+        if (bh >= 0) {
+            const int f = wp::mesh_get(mid).bvh.primitive_indices[bh];
+            out[0] = bt; out[1] = bu; out[2] = bv; out[3] = (float)(f >> 12); out[4] = (float)(f & 4095);
+        }
+    }
+}
+#endif
+return out;
+""".replace("@RECORD@\n", _BINS_RECORD.lstrip("\n")).replace("@CELL@\n", _BINS_CELL.lstrip("\n")).replace(
+    "@WALK@\n", _BINS_WALK.lstrip("\n"))
+
+
+@wp.func_native(_BINS_RAY)
+def mesh_bins_ray(mid: wp.uint64, bins: wp.uint64, tris: wp.uint64, o: wp.vec3, d: wp.vec3,
+                  t_max: float) -> MeshRayHit:
+    """``mesh_tree_ray``'s answer for a ray from the bins' origin through the mesh's camera bins
+    (see above); t -2 where the bins cannot serve it (none, another origin, off the grid)."""
+    ...
 
 
 @wp.func_native(_BINS_PACKET)

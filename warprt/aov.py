@@ -39,6 +39,7 @@ albedo ``albedo.R albedo.G albedo.B``, ids as UINT channels holding id + 1 (0: n
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,8 +228,8 @@ def _aov_kernel():
 
     @wp.kernel(module="warprt_aov", enable_backward=False)
     def aov_kernel(scene: SceneData, cam: CameraData, params: RenderParams, film: FilmData, n: int, idmap: IdMap,
-                   out: AovBuffers):
-        pixel = wp.tid()
+                   out: AovBuffers, first: int):
+        pixel = first + wp.tid()
         aov_pixel(scene, cam, params, pixel % cam.width, pixel / cam.width, pixel, wp.min(n, film.limit[pixel]),
                   idmap, out, pixel)
 
@@ -280,14 +281,38 @@ def shaped(bufs: AovBuffers, names, shape: tuple, as_warp: bool) -> dict:
     return out
 
 
+AOV_PIECES_PER_WORKER = 8  # bands of rows the CPU's AOV pixels are cut into, per worker (compute_aovs)
+
+
 def compute_aovs(built: DeviceScene, names, params: RenderParams, film: FilmData, n: int,
-                 as_warp: bool = False) -> dict:
+                 as_warp: bool = False, pool=None, workers: int = 1) -> dict:
     """The requested AOVs of a render, from samples [0, n) of each pixel (at most its film
-    limit) with the render's ``params``: numpy arrays, or ``wp.array``s with ``as_warp``."""
+    limit) with the render's ``params``: numpy arrays, or ``wp.array``s with ``as_warp``. On the
+    CPU with a thread ``pool`` and several ``workers`` (a CPU launch runs on one thread), the
+    workers take bands of rows in turn, AOV_PIECES_PER_WORKER of them per worker; a pixel's AOVs
+    are its own, whatever the split."""
     names = check_aov_names(names)
     cam = built.scene.camera
     count, dev = cam.width * cam.height, built.device
     bufs = aov_buffers(count, dev)
-    wp.launch(_aov_kernel(), dim=count, device=dev,
-              inputs=[built.data, built.camera, params, film, int(n), id_map(built), bufs])
+    inputs = [built.data, built.camera, params, film, int(n), id_map(built), bufs]
+    if pool is None or workers <= 1 or not dev.is_cpu:
+        wp.launch(_aov_kernel(), dim=count, device=dev, inputs=[*inputs, 0])
+    else:
+        # recorded here (the module is loaded from this thread), launched by the workers
+        step = -(-cam.height // (AOV_PIECES_PER_WORKER * workers)) * cam.width
+        pieces = iter([wp.launch(_aov_kernel(), dim=min(step, count - first), device=dev, inputs=[*inputs, first],
+                                 record_cmd=True) for first in range(0, count, step)])
+        lock = threading.Lock()
+
+        def work():
+            while True:
+                with lock:
+                    cmd = next(pieces, None)
+                if cmd is None:
+                    return
+                cmd.launch()
+
+        for f in [pool.submit(work) for _ in range(workers)]:
+            f.result()
     return shaped(bufs, names, (cam.height, cam.width), as_warp)

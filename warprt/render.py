@@ -474,7 +474,8 @@ class Renderer:
                 rel_err = film.relative_error(done)
             image = film.device_image(done) if as_warp else film.image(done)
             # the AOVs of the samples the image holds (the same camera rays, regenerated)
-            aov_maps = compute_aovs(self.built, aovs, params, film.data, done, as_warp) if aovs else {}
+            aov_maps = compute_aovs(self.built, aovs, params, film.data, done, as_warp, self._pool.get(int(workers)),
+                                    int(workers)) if aovs else {}
             # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
             spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
             return RenderResult(image=image, spp=spp_done, wall_time=wall, rays=film.rays(),

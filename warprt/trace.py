@@ -22,7 +22,7 @@ import warp as wp
 
 from .accel import (
     PACKET, PACKET_MISS, SHADOW_PACKET_MIN, PacketF, PacketI, StackDist, StackRefs, horizon_escapes, lane, lane_i,
-    mesh_balls_hit, mesh_bins_packet, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet, mesh_tree_ray,
+    mesh_balls_hit, mesh_bins_packet, mesh_bins_ray, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet, mesh_tree_ray,
     packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
@@ -318,14 +318,19 @@ def mesh_first_hit(inst: InstRec, o: wp.vec3, d: wp.vec3, t_max: float) -> MeshH
     """Nearest hit of instance ``inst``'s mesh along (o, d) (object space) in (0, t_max) on a
     triangle the ray really approaches (see ``leaves_face``); ``index`` 0 for a hit, -1 for none.
     A rejected hit (or one exactly at the origin) is stepped over by its rounding and the query
-    repeated. The query is ``accel.mesh_tree_ray`` (the CPU copy of the tree; Warp's on CUDA)."""
+    repeated. The query is ``accel.mesh_bins_ray`` where the instance has the camera's bins and
+    the ray comes from the eye, else ``accel.mesh_tree_ray`` (the CPU copy of the tree; Warp's on
+    CUDA)."""
     r = MeshHit()
     r.index = -1
     mid = inst.mesh
     t0 = float(0.0)
     for _k in range(4):
-        q = mesh_tree_ray(mid, inst.tree_nodes, inst.tree_kids, inst.tree_tris, inst.tree_root,
-                          o + d * t0, d, t_max - t0)
+        # a camera ray from the eye through the camera's bins, where the instance has them
+        q = mesh_bins_ray(mid, inst.bins, inst.tree_tris, o + d * t0, d, t_max - t0)
+        if q[0] == -2.0:
+            q = mesh_tree_ray(mid, inst.tree_nodes, inst.tree_kids, inst.tree_tris, inst.tree_root,
+                              o + d * t0, d, t_max - t0)
         if q[0] < 0.0:
             return r
         qt = q[0]
