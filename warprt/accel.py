@@ -1894,9 +1894,9 @@ def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64,
 # least depth lies past its nearest hit, so the walk down the list stops there. Each candidate
 # is tested as the packets' traversal tests it (``_WOOP`` with the lane's shear, an exact tie to
 # the lower leaf): a lane gets the tree's hit, except where two triangles meet the ray at the
-# same t or within rounding of it (a ray through a shared corner or edge) and rounding put the
-# farther one's box entry past that t, so that the tree's walk never tested the nearer one or
-# the lower leaf that the bins find (test_accel). For (d)'s 328k-triangle torus a camera ray
+# same t or within rounding of it (a ray through a shared corner or edge) and rounding put one's
+# box entry past the other's t, so that the tree's walk never tested it: the bins then give the
+# nearer one, or at the same t the lower leaf (test_accel). For (d)'s 328k-triangle torus a ray
 # tests 3.2 triangles a lane against the packets' 20 wide node visits and 16 triangle tests a
 # packet: its camera rays alone take 0.77x the time (docs/benchmarks.md, levers).
 # The bins' record, float32 words: 0-2 the origin, 3-5 / 6-8 / 9-11 the axes U, V (tangent) and
@@ -2150,8 +2150,9 @@ def camera_bins(tris: "wp.array", origin, forward, up, tan_x: float, tan_y: floa
     """The bins' record (see above) of the triangles ``tris`` (float32 corners in leaf order, 9
     a triangle, on the CPU) seen from ``origin`` (float32 object-space point) looking along
     ``forward`` with ``up``, over the view's tangent rectangle [-tan_x, tan_x] × [-tan_y, tan_y]
-    in cells of ``cell`` tangent units; None where bins cannot serve (a triangle not wholly in
-    front of the origin, or nothing of the mesh's ``box`` (lo, hi) in view)."""
+    in cells of ``cell`` tangent units (larger past BINS_MAX_CELLS cells); None where bins cannot
+    serve: a triangle not wholly in front of the origin, nothing of the mesh's ``box`` (lo, hi)
+    in view, projected boxes covering more than BINS_MAX_ENTRIES cells, or not on the CPU."""
     o32 = np.asarray(origin, np.float32)
     f = np.asarray(forward, np.float64)
     f = f / np.linalg.norm(f)

@@ -313,6 +313,15 @@ def compute_aovs(built: DeviceScene, names, params: RenderParams, film: FilmData
                     return
                 cmd.launch()
 
+        # (a Ctrl-C waits for the bands under way, as a render's pass does: render.run_pass)
+        held = False
         for f in [pool.submit(work) for _ in range(workers)]:
-            f.result()
+            while True:
+                try:
+                    f.result()
+                    break
+                except KeyboardInterrupt:
+                    held = True
+        if held:
+            raise KeyboardInterrupt
     return shaped(bufs, names, (cam.height, cam.width), as_warp)

@@ -22,8 +22,8 @@ import warp as wp
 
 from .accel import (
     PACKET, PACKET_MISS, SHADOW_PACKET_MIN, PacketF, PacketI, StackDist, StackRefs, horizon_escapes, lane, lane_i,
-    mesh_balls_hit, mesh_bins_packet, mesh_bins_ray, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet, mesh_tree_ray,
-    packet_node, safe_inverse, slab,
+    mesh_balls_hit, mesh_bins_packet, mesh_bins_ray, mesh_tree_occluded, mesh_tree_occluded_packet, mesh_tree_packet,
+    mesh_tree_ray, packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
 from .geometry import (
