@@ -1937,13 +1937,8 @@ _BINS_CELL = r"""
 # the walk down cell cl's list for the ray (ol0..ol2, dl0..dl2) from bt (its reach): the nearest
 # triangle (bt, bu, bv; leaf position bh, -1 for none), by the packets' test and tie rule
 _BINS_WALK = _splice(r"""
-        int kz = fabsf(dl0) > fabsf(dl1) ? (fabsf(dl0) > fabsf(dl2) ? 0 : 2) : (fabsf(dl1) > fabsf(dl2) ? 1 : 2);
-        int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-        const float dk[3] = {dl0, dl1, dl2};
-        if (dk[kz] < 0.0f) { int tmp = kx; kx = ky; ky = tmp; }
-        const float Sx = dk[kx] / dk[kz], Sy = dk[ky] / dk[kz], Sz = 1.0f / dk[kz];
-        const float okk[3] = {ol0, ol1, ol2};
-        const float okx = okk[kx], oky = okk[ky], okz = okk[kz];
+        const float ox = ol0, oy = ol1, oz = ol2, dx = dl0, dy = dl1, dz = dl2;  // (the names _SHEAR reads)
+@SHEAR@
         float bu = 0.0f, bv = 0.0f;
         int bh = -1;
         auto tri_test = [&](int k) {
