@@ -21,6 +21,15 @@ from warprt.records import InstRec
 from warprt.trace import mesh_first_hit
 
 
+@wp.func
+def _lanes(v: wp.array(dtype=wp.vec3, ndim=2), i: int, c: int) -> accel.PacketF:
+    """Coordinate c of row i's 8 vectors, as a packet's lanes."""
+    p = accel.PacketF()
+    for l in range(accel.PACKET):
+        p[l] = v[i, l][c]
+    return p
+
+
 def _check_tree(lo, hi):
     order, c0, c1, boxes = accel.build_tree(lo, hi)
     n = lo.shape[0]
@@ -176,22 +185,11 @@ def test_the_packet_node_test_lane_by_lane_equals_its_vector_form(device):
         def k(nodes: wp.array(dtype=accel.BvhNode), refs: wp.array(dtype=int), o: wp.array(dtype=wp.vec3, ndim=2),
               inv: wp.array(dtype=wp.vec3, ndim=2), best: wp.array(dtype=float, ndim=2), out: wp.array(dtype=wp.vec2)):
             i = wp.tid()
-            ox = accel.PacketF()
-            oy = accel.PacketF()
-            oz = accel.PacketF()
-            ix = accel.PacketF()
-            iy = accel.PacketF()
-            iz = accel.PacketF()
             bb = accel.PacketF()
             for l in range(accel.PACKET):
-                ox[l] = o[i, l][0]
-                oy[l] = o[i, l][1]
-                oz[l] = o[i, l][2]
-                ix[l] = inv[i, l][0]
-                iy[l] = inv[i, l][1]
-                iz[l] = inv[i, l][2]
                 bb[l] = best[i, l]
-            out[i] = fn(nodes, refs[i], ox, oy, oz, ix, iy, iz, bb)
+            out[i] = fn(nodes, refs[i], _lanes(o, i, 0), _lanes(o, i, 1), _lanes(o, i, 2), _lanes(inv, i, 0),
+                        _lanes(inv, i, 1), _lanes(inv, i, 2), bb)
 
         res = wp.zeros(n, dtype=wp.vec2, device=device)
         wp.launch(k, dim=n, device=device, inputs=[
@@ -1635,20 +1633,10 @@ def _bins_against_tree(mesh, tree, rec, o, d, reach):
           via_bins: wp.array(dtype=wp.vec4, ndim=2), via_tree: wp.array(dtype=wp.vec4, ndim=2),
           served: wp.array(dtype=int), ray_bad: wp.array(dtype=int), ray_served: wp.array(dtype=int)):
         i = wp.tid()
-        ox = accel.PacketF()
-        oy = accel.PacketF()
-        oz = accel.PacketF()
-        dx = accel.PacketF()
-        dy = accel.PacketF()
-        dz = accel.PacketF()
+        ox, oy, oz = _lanes(o, i, 0), _lanes(o, i, 1), _lanes(o, i, 2)
+        dx, dy, dz = _lanes(d, i, 0), _lanes(d, i, 1), _lanes(d, i, 2)
         tm = accel.PacketF()
         for l in range(accel.PACKET):
-            ox[l] = o[i, l][0]
-            oy[l] = o[i, l][1]
-            oz[l] = o[i, l][2]
-            dx[l] = d[i, l][0]
-            dy[l] = d[i, l][1]
-            dz[l] = d[i, l][2]
             tm[l] = reach[i, l]
         bt = accel.PacketF()
         bu = accel.PacketF()
