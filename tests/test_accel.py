@@ -1880,9 +1880,32 @@ def test_camera_bins_keep_to_their_memory_caps(monkeypatch):
                                                     d.reshape(-1, 8, 3), np.full((256, 8), 3.0e38, np.float32))
     assert served.all() and (via_tree[..., 3] >= 0).mean() > 0.5
     np.testing.assert_array_equal(via_bins[..., 0].view(np.uint32), via_tree[..., 0].view(np.uint32))
-    entries = len(full) - full.view(np.int32)[17]
+    total = (len(full) - full.view(np.int32)[17]) // 2
     monkeypatch.setattr(accel, "BINS_MAX_CELLS", 1 << 22)
-    monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", entries // 2)
-    assert accel.camera_bins(*args) is None
-    monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", entries)
-    assert accel.camera_bins(*args) is not None
+    for room, fits in ((nx * ny, False), (nx * ny + total - 1, False), (nx * ny + total, True)):
+        monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", room)
+        assert (accel.camera_bins(*args) is not None) == fits
+        monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", 1 << 23)
+        assert (accel.camera_bins(*args, room) is not None) == fits
+
+
+def test_a_scenes_camera_bins_share_one_budget(monkeypatch):
+    """Instances get camera bins in turn while ``accel.BINS_MAX_ENTRIES`` has room for them: with
+    room for one of two, the first gets bins and the second renders through its tree, and the
+    image is the same."""
+    monkeypatch.setattr(accel, "BINS_TRIANGLES", 1024)
+    scene = _balls_scene()
+    ball = scene.shapes[1]
+    scene = scene.replace(shapes=(scene.shapes[0], dataclasses.replace(ball, transform=warprt.Transform(
+        translate=(-0.9, 0.0, -0.5), scale=1.0)), dataclasses.replace(ball, transform=warprt.Transform(
+        translate=(0.9, 0.0, -0.3)))))
+    both = warprt.Renderer(scene, device="cpu")
+    sizes = [int(b.numpy()[15:17].view(np.int32).prod()) + (len(b) - int(b.numpy()[17:18].view(np.int32)[0])) // 2
+             for b in both.built._bins]
+    assert len(sizes) == 2 and (both.built.data.insts.numpy()["bins"][:2] != 0).all()
+    monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", sizes[0] + sizes[1] - 1)
+    one = warprt.Renderer(scene, device="cpu")
+    rows = one.built.data.insts.numpy()["bins"][:2]
+    assert rows[0] != 0 and rows[1] == 0
+    image = both.render(spp=2, seed=1, progress=False).image
+    assert one.render(spp=2, seed=1, progress=False).image.tobytes() == image.tobytes()

@@ -1907,7 +1907,7 @@ BINS_HEAD = 20
 BINS_TRIANGLES = 65536  # meshes with this many triangles or more get bins (their trees are deep)
 BINS_PER_PIXEL = 2  # cells along a pixel's side (3 or 4: more entries, slower on (d))
 BINS_MAX_CELLS = 1 << 22  # a larger grid gets larger cells (16 MB of offsets)
-BINS_MAX_ENTRIES = 1 << 23  # projected boxes covering more cells than this (64 MB of entries): no bins
+BINS_MAX_ENTRIES = 1 << 23  # cells and entries over all of a scene's bins (about 48 MB)
 BINS_AFTER_RENDERS = 2  # a changed view gets bins once rendered this many times (build.DeviceScene.rendering)
 # the bins' record (``bins``) and the triangles in leaf order (``tris``) for the walks below
 _BINS_RECORD = r"""
@@ -2052,7 +2052,8 @@ def camera_bins_kernel(tris: wp.array(dtype=wp.float32), frame: wp.array(dtype=w
     (a, b) and cells per tangent unit): with ``fill`` 0 each cell's count, with 1 its entries
     (``counts`` then the cells' next free entries). A CPU launch runs its triangles in order, so
     each cell's entries come in leaf order. ``bad``: 1 where a triangle is not wholly in front, 2
-    where the boxes would cover more than ``max_cells`` cells (counted in bad[1]); later triangles stop."""
+    where the count's boxes would cover more than ``max_cells`` cells (counted in bad[1]); later
+    triangles then stop."""
     i = wp.tid()
     if bad[0] != 0:
         return
@@ -2141,13 +2142,15 @@ def camera_bins_sort_kernel(offsets: wp.array(dtype=wp.int32), depth: wp.array(d
 
 
 def camera_bins(tris: "wp.array", origin, forward, up, tan_x: float, tan_y: float, cell: float,
-                box: tuple) -> np.ndarray | None:
+                box: tuple, max_entries: int | None = None) -> np.ndarray | None:
     """The bins' record (see above) of the triangles ``tris`` (float32 corners in leaf order, 9
     a triangle, on the CPU) seen from ``origin`` (float32 object-space point) looking along
     ``forward`` with ``up``, over the view's tangent rectangle [-tan_x, tan_x] × [-tan_y, tan_y]
     in cells of ``cell`` tangent units (larger past BINS_MAX_CELLS cells); None where bins cannot
     serve: a triangle not wholly in front of the origin, nothing of the mesh's ``box`` (lo, hi)
-    in view, projected boxes covering more than BINS_MAX_ENTRIES cells, or not on the CPU."""
+    in view, more cells and entries than ``max_entries`` (BINS_MAX_ENTRIES by default) in all, or
+    not on the CPU."""
+    max_entries = BINS_MAX_ENTRIES if max_entries is None else max_entries
     o32 = np.asarray(origin, np.float32)
     f = np.asarray(forward, np.float64)
     f = f / np.linalg.norm(f)
@@ -2180,7 +2183,7 @@ def camera_bins(tris: "wp.array", origin, forward, up, tan_x: float, tan_y: floa
     nx = int(math.ceil((g1a - float(g0a32)) * float(inv)))
     ny = int(math.ceil((g1b - float(g0b32)) * float(inv)))
     dev = tris.device
-    if not dev.is_cpu:  # (the kernels count and fill in one thread's order: CPU launches only)
+    if not dev.is_cpu or nx * ny >= max_entries:  # (the kernels count and fill in one thread's order: CPU only)
         return None
     n = tris.shape[0] // 9
     frame = wp.array(np.array([o, U, V, F]), dtype=wp.vec3d, device=dev)
@@ -2189,17 +2192,21 @@ def camera_bins(tris: "wp.array", origin, forward, up, tan_x: float, tan_y: floa
     bad = wp.zeros(2, dtype=wp.int32, device=dev)
     none_f, none_i = wp.zeros(1, dtype=wp.float32, device=dev), wp.zeros(1, dtype=wp.int32, device=dev)
     args = [tris, frame, grid, nx, ny]
-    wp.launch(camera_bins_kernel, dim=n, device=dev, inputs=[*args, 0, BINS_MAX_ENTRIES, counts, none_f, none_i, bad])
+    # (the count stops once the projected boxes cover 4 times the room: a bound on its work)
+    wp.launch(camera_bins_kernel, dim=n, device=dev, inputs=[*args, 0, 4 * (max_entries - nx * ny), counts, none_f,
+                                                             none_i, bad])
     if bad.numpy()[0]:
         return None
     offs = np.zeros(nx * ny + 1, np.int64)
     np.cumsum(counts.numpy(), out=offs[1:])
     total = int(offs[-1])
+    if nx * ny + total > max_entries:
+        return None
     offs = offs.astype(np.int32)
     depth = wp.zeros(max(total, 1), dtype=wp.float32, device=dev)
     leaf = wp.zeros(max(total, 1), dtype=wp.int32, device=dev)
     counts.assign(offs[:-1])
-    wp.launch(camera_bins_kernel, dim=n, device=dev, inputs=[*args, 1, BINS_MAX_ENTRIES, counts, depth, leaf, bad])
+    wp.launch(camera_bins_kernel, dim=n, device=dev, inputs=[*args, 1, 0, counts, depth, leaf, bad])
     offsets = wp.array(offs, dtype=wp.int32, device=dev)
     wp.launch(camera_bins_sort_kernel, dim=nx * ny, device=dev, inputs=[offsets, depth, leaf])
     first = BINS_HEAD + nx * ny + 1

@@ -233,6 +233,7 @@ class DeviceScene:
         rows = d.insts.numpy()
         had = bool(self._bins)
         self._bins = []
+        budget = accel.BINS_MAX_ENTRIES  # (the instances share one budget of memory, in instance order)
         still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0
         tan_y = math.tan(math.radians(cam.fov) / 2.0)
         identity = np.array([0.0, 0.0, 0.0, 1.0], np.float32)
@@ -246,9 +247,10 @@ class DeviceScene:
             # the origin as the kernel computes a camera ray's in object space (trace.to_object)
             origin = np.asarray(cam.eye, np.float32) - r["pos0"]
             rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_y * cam.aspect, tan_y,
-                              2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]))
+                              2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
             if rec is None:
                 continue
+            budget -= int(rec[15:17].view(np.int32).prod()) + (len(rec) - int(rec[17:18].view(np.int32)[0])) // 2
             arr = wp.array(rec, dtype=wp.float32, device=self.device)
             self._bins.append(arr)
             rows["bins"][i] = arr.ptr
