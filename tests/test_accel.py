@@ -1803,6 +1803,13 @@ def test_renders_through_camera_bins_are_the_trees_and_follow_the_view(monkeypat
     rows["bins"] = 0
     fresh.built.data.insts.assign(rows)
     assert fresh.render(spp=4, seed=3, progress=False).image.tobytes() == moved.tobytes() != first.tobytes()
+    r.update(scene)  # (a new scene: its bins too after two renders)
+    assert _bins(r) == 0
+    r.render(spp=1, seed=3, progress=False)
+    r.render(spp=1, seed=3, progress=False)
+    assert _bins(r) == 0
+    r.render(spp=1, seed=3, progress=False)
+    assert _bins(r) != 0
     cam = scene.camera
     for name, changed in (
             ("a lens", scene.replace(camera=dataclasses.replace(cam, aperture=0.05, focus_distance=3.0))),
