@@ -1907,8 +1907,7 @@ def test_a_scenes_camera_bins_share_one_budget(monkeypatch):
         translate=(-0.9, 0.0, -0.5), scale=1.0)), dataclasses.replace(ball, transform=warprt.Transform(
         translate=(0.9, 0.0, -0.3)))))
     both = warprt.Renderer(scene, device="cpu")
-    sizes = [int(b.numpy()[15:17].view(np.int32).prod()) + (len(b) - int(b.numpy()[17:18].view(np.int32)[0])) // 2
-             for b in both.built._bins]
+    sizes = [accel.camera_bins_size(b.numpy()) for b in both.built._bins]
     assert len(sizes) == 2 and (both.built.data.insts.numpy()["bins"][:2] != 0).all()
     monkeypatch.setattr(accel, "BINS_MAX_ENTRIES", sizes[0] + sizes[1] - 1)
     one = warprt.Renderer(scene, device="cpu")

@@ -2141,6 +2141,12 @@ def camera_bins_sort_kernel(offsets: wp.array(dtype=wp.int32), depth: wp.array(d
         leaf[m + 1] = k
 
 
+def camera_bins_size(rec: np.ndarray) -> int:
+    """The cells and entries a bins record holds: what it takes of BINS_MAX_ENTRIES."""
+    ints = rec.view(np.int32)
+    return int(ints[15]) * int(ints[16]) + (len(rec) - int(ints[17])) // 2
+
+
 def camera_bins(tris: "wp.array", origin, forward, up, tan_x: float, tan_y: float, cell: float,
                 box: tuple, max_entries: int | None = None) -> np.ndarray | None:
     """The bins' record (see above) of the triangles ``tris`` (float32 corners in leaf order, 9

@@ -250,7 +250,7 @@ class DeviceScene:
                               2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
             if rec is None:
                 continue
-            budget -= int(rec[15:17].view(np.int32).prod()) + (len(rec) - int(rec[17:18].view(np.int32)[0])) // 2
+            budget -= accel.camera_bins_size(rec)
             arr = wp.array(rec, dtype=wp.float32, device=self.device)
             self._bins.append(arr)
             rows["bins"][i] = arr.ptr

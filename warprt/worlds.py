@@ -55,7 +55,9 @@ from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
     CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SolidRec, SphereRec,
 )
-from .render import SLICE_BLOCK, SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass
+from .render import (
+    SLICE_BLOCK, SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass,
+)
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
