@@ -1904,7 +1904,7 @@ def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64,
 # the cells per tangent unit, then as int32 words 15 nx, 16 ny, 17 the first entry's word; from
 # word BINS_HEAD the nx·ny + 1 cell offsets; the entries as (least depth, leaf position) pairs.
 BINS_HEAD = 20
-BINS_TRIANGLES = 65536  # meshes with this many triangles or more get bins (their trees are deep)
+BINS_TRIANGLES = 1024  # meshes with this many triangles or more get bins (as the shadow packets)
 BINS_PER_PIXEL = 2  # cells along a pixel's side (3 or 4: more entries, slower on (d))
 BINS_MAX_CELLS = 1 << 22  # a larger grid gets larger cells (16 MB of offsets)
 BINS_MAX_ENTRIES = 1 << 23  # cells and entries over all of a scene's bins (about 48 MB)

@@ -30,10 +30,14 @@ error soonest: docs/benchmarks.md, levers.)
 
 The cost ratio is a constant, not a timing, so the same scene always gets the same N and the
 same seed the same image: one more light sample (the light draw and its shadow ray) costs about
-half a camera sample (camera ray, hit, shading, film) on the peer benchmark's mesh scenes (2
-workers, wall ms at 8 spp for N = 1, 2, 4, 8: 78, 89, 146, 250 on the penumbrae; 167, 207, 331
-for N = 1, 2, 4 on the 328k-triangle mesh: C_cam / C_light = 2.2 and 2.1). With several "auto"
-lights each takes N, and a unit of N costs one light sample per such light.
+a third of a camera sample (camera ray, hit, shading, film) on the peer benchmark's mesh scenes
+(2 workers, wall ms at 8 spp for N = 1, 2, 4, 8, a line fitted through them: 40, 50, 69, 109 on
+the penumbrae, C_cam / C_light = 3.1; 52, 62, 83, 127 through the thin lens, 3.8; 67, 90, 133,
+222 on the 328k-triangle mesh, 2.1, whose shadow rays cross a deep tree; the median is taken).
+Measured when the shadow rays had become cheaper than at first (2.1–2.2 on all three): with 3.1
+the thin lens takes 4 shadow rays instead of 2, its error × time 0.72–0.84× at 2–16 spp
+(docs/benchmarks.md, levers). With several "auto" lights each takes N, and a unit of N costs one
+light sample per such light.
 
 The choice is made once per renderer (the split is the scene's, not the render's) and is
 independent of the seed, spp and workers.
@@ -47,7 +51,7 @@ PILOT_SPP = 4  # camera samples per pixel of the pilot
 PILOT_ROW_STEP = 8  # the pilot renders every 8th row (at least 16 rows: smaller steps on small images)
 PROBE = 8  # light samples per camera sample in the pilot's second pair of renders
 MAX_SAMPLES = 16  # the most shadow rays per camera sample "auto" gives
-COST_RATIO = 2.1  # cost of a camera sample / cost of one light sample (measured, see above)
+COST_RATIO = 3.1  # cost of a camera sample / cost of one light sample (measured, see above)
 PILOT_SEEDS = (0x5EED5, 0x5EED6)  # the pilot's fixed seeds: the choice does not depend on the render's
 RATE = 1.5  # a stratifying sampler's error of a mean falls as (samples)^-RATE (1 for independent)
 
