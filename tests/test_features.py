@@ -303,7 +303,7 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
     shapes = (warprt.Plane(material="floor"), warprt.Mesh(vertices=verts, faces=faces, material="ball"),
               warprt.Sphere(center=(-1.0, 0.3, 0.6), radius=0.3, material="shiny"),
-              warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="floor"))
+              warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="wall"))
     lights = (
         # near the floor: drawn by solid angle below it, by the cosine warp farther off
         # four samples: with Sobol drawn in quadrant order (sampling.sobol_split_draw)
@@ -317,8 +317,9 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
                          samples=2),
         warprt.PointLight(position=(1.0, 2.0, 2.0), intensity=0.5),
     )
+    # (the wall a coloured Lambertian: packets of such lanes take their colours at once, lights.diffuse_lanes)
     materials = {"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40),
-                 "shiny": warprt.Material(kd=0.3, ks=0.6, p=200)}
+                 "shiny": warprt.Material(kd=0.3, ks=0.6, p=200), "wall": warprt.Material(kd=(0.2, 0.5, 0.7))}
     camera = warprt.Camera(eye=(0.3, 1.6, 3.0), look_at=(0.0, 0.3, 0.0), width=24, height=18)
     spp = PACKET + 3  # a full packet and a part one per pixel
     for mode in ("cosine", "uniform"):

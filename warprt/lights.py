@@ -265,6 +265,96 @@ def point_sums(lit: int, intensity: wp.vec3, inv_sq: int, dist: PacketF, fr: Pac
     ...
 
 
+# An area light's draw for a packet's lanes in ``lanes`` (bit mask) with Lambertian materials, at
+# once (clang vectors; lane by lane on CUDA), each lane's the scalar loop's bit for bit: its
+# colour f = kd·(n·l) into fr, fg, fb, and where max(f) > 0 (or NaN, as ``wp.max(f) <= 0``
+# reads it) its bit in the result and one more shadow ray in ``rays``.
+_DIFFUSE_LANES = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lanes) != 0;
+v8 KR, KG, KB, NL;
+i8 R;
+__builtin_memcpy(&KR, &kdr, 32); __builtin_memcpy(&KG, &kdg, 32); __builtin_memcpy(&KB, &kdb, 32);
+__builtin_memcpy(&NL, &nl, 32); __builtin_memcpy(&R, &rays, 32);
+const v8 F0 = KR * NL, F1 = KG * NL, F2 = KB * NL;
+const v8 m01 = F0 > F1 ? F0 : F1;
+const v8 mx = m01 > F2 ? m01 : F2;
+const i8 go = on & ~(mx <= 0.0f);
+R -= go;  // (-1 a lane that goes)
+__builtin_memcpy(&fr, &F0, 32); __builtin_memcpy(&fg, &F1, 32); __builtin_memcpy(&fb, &F2, 32);
+__builtin_memcpy(&rays, &R, 32);
+for (int l = 0; l < 8; ++l) res |= go[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    const float f0 = kdr[l] * nl[l], f1 = kdg[l] * nl[l], f2 = kdb[l] * nl[l];
+    const float m01 = f0 > f1 ? f0 : f1;
+    const float mx = m01 > f2 ? m01 : f2;
+    if (mx <= 0.0f) continue;
+    fr[l] = f0; fg[l] = f1; fb[l] = f2;
+    rays[l] = rays[l] + 1;
+    res |= 1 << l;
+}
+#endif
+return res;
+"""
+
+
+@wp.func_native(_DIFFUSE_LANES)
+def diffuse_lanes(lanes: int, kdr: PacketF, kdg: PacketF, kdb: PacketF, nl: PacketF, fr: wp.ref[PacketF],
+                  fg: wp.ref[PacketF], fb: wp.ref[PacketF], rays: wp.ref[PacketI]) -> int:
+    """See above."""
+    ...
+
+
+# An area light's unblocked draws for a packet's lanes in ``lit`` (bit mask), at once (clang
+# vectors; lane by lane on CUDA), each lane's the scalar loop's bit for bit:
+# mul_sat(mul_sat(1, f), ip / π) for its colour f and weight ip, added to its sums (``_POINT_SUMS``'
+# ``sat``).
+_AREA_SUMS = r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lit) != 0;
+const v8 zero = 0.0f, big = 3.4028234663852886e38f, one = 1.0f;
+auto sat = [&](v8 x, v8 y) {
+    const v8 p = x * y;
+    return ((x > 0.0f) & (y > 0.0f)) ? (p <= big ? p : big) : zero;
+};
+v8 W, F0, F1, F2, O0, O1, O2;
+__builtin_memcpy(&W, &ip, 32);
+__builtin_memcpy(&F0, &fr, 32); __builtin_memcpy(&F1, &fg, 32); __builtin_memcpy(&F2, &fb, 32);
+__builtin_memcpy(&O0, &out_r, 32); __builtin_memcpy(&O1, &out_g, 32); __builtin_memcpy(&O2, &out_b, 32);
+W = W / 3.14159265358979323846f;
+const v8 L0 = sat(sat(one, F0), W), L1 = sat(sat(one, F1), W), L2 = sat(sat(one, F2), W);
+O0 = on ? O0 + L0 : O0; O1 = on ? O1 + L1 : O1; O2 = on ? O2 + L2 : O2;  // (the lanes no shadow ray was blocked for)
+__builtin_memcpy(&out_r, &O0, 32); __builtin_memcpy(&out_g, &O1, 32); __builtin_memcpy(&out_b, &O2, 32);
+#else
+auto sat = [](float x, float y) {
+    const float p = x * y;
+    return x > 0.0f && y > 0.0f ? (p <= 3.4028234663852886e38f ? p : 3.4028234663852886e38f) : 0.0f;
+};
+for (int l = 0; l < 8; ++l) {
+    if (!((lit >> l) & 1)) continue;
+    const float w = ip[l] / 3.14159265358979323846f;
+    out_r[l] = out_r[l] + sat(sat(1.0f, fr[l]), w);
+    out_g[l] = out_g[l] + sat(sat(1.0f, fg[l]), w);
+    out_b[l] = out_b[l] + sat(sat(1.0f, fb[l]), w);
+}
+#endif
+"""
+
+
+@wp.func_native(_AREA_SUMS)
+def area_sums(lit: int, ip: PacketF, fr: PacketF, fg: PacketF, fb: PacketF, out_r: wp.ref[PacketF],
+              out_g: wp.ref[PacketF], out_b: wp.ref[PacketF]):
+    """See above."""
+    ...
+
+
 @wp.func(inline=True)
 def lobe_colour(sp: ShadePacket, k: int, nl: float, hl: float, nh: float) -> wp.vec3:
     """``blinn_phong``'s colour for lane k of a packet's shading points from its n·l, |l + v| and
@@ -409,22 +499,24 @@ def make_lights(F: Features) -> SimpleNamespace:
                     m = rect_draw_packet(rec.c, rec.e1, rec.e2, rec.n, area, params.light_sampling, ready & 255, knots,
                                          sp.px, sp.py, sp.pz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
                     go = int(0)  # the lanes whose sample lights them if nothing is in the way
-                    # blinn_phong for the lanes: its geometry at once, then each lane's colour
+                    # blinn_phong for the lanes: its geometry at once, then each lane's colour (all
+                    # lanes at once for Lambertian materials)
                     m = lobe_packet(m & 255, l0, l1, l2, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz,
                                     nl, hl, nh)
-                    for k in range(lanes):
-                        if (m >> k) & 1 == 0:
-                            continue
-                        f = wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)) * nl[k]
-                        if glossy != 0:
+                    if glossy == 0:
+                        go = diffuse_lanes(m, sp.kdr, sp.kdg, sp.kdb, nl, fr, fg, fb, out.rays)
+                    else:
+                        for k in range(lanes):
+                            if (m >> k) & 1 == 0:
+                                continue
                             f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
-                        if wp.max(f) <= 0.0:
-                            continue
-                        lane_addi(out.rays, k, 1)
-                        fr[k] = f[0]
-                        fg[k] = f[1]
-                        fb[k] = f[2]
-                        go = go | (1 << k)
+                            if wp.max(f) <= 0.0:
+                                continue
+                            lane_addi(out.rays, k, 1)
+                            fr[k] = f[0]
+                            fg[k] = f[1]
+                            fb[k] = f[2]
+                            go = go | (1 << k)
                     if go == 0:
                         continue
                     # the shadow rays of the lanes together (``shadow``'s set-up, then
@@ -432,14 +524,8 @@ def make_lights(F: Features) -> SimpleNamespace:
                     test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
                     shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
                                            face)
-                    lit = go & ~shut
-                    for k in range(lanes):
-                        if (lit >> k) & 1 == 0:
-                            continue
-                        a = mul_sat(mul_sat(wp.vec3(1.0, 1.0, 1.0), wp.vec3(fr[k], fg[k], fb[k])), wp.vec3(ip[k] / wp.pi))
-                        lane_add(ar, k, a[0])
-                        lane_add(ag, k, a[1])
-                        lane_add(ab, k, a[2])
+                    # each lit lane's mul_sat(mul_sat(1, f), ip / π), the 8 at once
+                    area_sums(go & ~shut, ip, fr, fg, fb, ar, ag, ab)
                 for k in range(lanes):
                     if (drawn >> k) & 1 != 0:
                         L = mul_sat(scene.alights[j].le, wp.vec3(lane(ar, k), lane(ag, k), lane(ab, k))) / float(ns)
