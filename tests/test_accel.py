@@ -17,7 +17,7 @@ import warprt
 from warprt import accel
 from warprt._warp import MODULE_OPTIONS
 from warprt.build import DeviceScene
-from warprt.records import InstRec
+from warprt.records import InstRec, SceneData
 from warprt.trace import mesh_first_hit
 
 
@@ -1915,3 +1915,52 @@ def test_a_scenes_camera_bins_share_one_budget(monkeypatch):
     assert rows[0] != 0 and rows[1] == 0
     image = both.render(spp=2, seed=1, progress=False).image
     assert one.render(spp=2, seed=1, progress=False).image.tobytes() == image.tobytes()
+
+
+def test_a_rectangle_lights_shadow_rays_never_test_its_own_rectangle():
+    """An area light's shadow rays end short of a point of its own surface, which a line meets
+    nowhere else: a rectangle light's rectangle is never tested for them (``own_rect`` of
+    ``trace.transmittance`` and ``trace.occluded_packet``), where rounding once let a ray from a
+    point near the light's plane meet it. Segments through a rectangle: passed when it is the
+    light's own, blocked when not, by a rectangle that is not the light's in any case; through
+    the shapes' loop (one bounded shape) and through the analytic BVH (two), one by one and as a
+    packet."""
+    from warprt.trace import make_trace
+
+    a = warprt.Rectangle(corner=(-1.0, -1.0, 0.0), edge1=(2.0, 0.0, 0.0), edge2=(0.0, 2.0, 0.0), material="m")
+    b = warprt.Rectangle(corner=(-1.0, -1.0, 2.0), edge1=(2.0, 0.0, 0.0), edge2=(0.0, 2.0, 0.0), material="m")
+    # segments from z = -1 along +z: through a (to z = 1), through a and b (to z = 3), beside both
+    o = np.array([[0.1 * k - 0.3, 0.05 * k, -1.0] for k in range(8)], np.float32)
+    o[7] = (3.0, 0.0, -1.0)
+    d = np.tile(np.float32([0.0, 0.0, 1.0]), (8, 1))
+    t = np.float32([2.0, 2.0, 4.0, 4.0, 2.0, 4.0, 2.0, 4.0])
+    camera = warprt.Camera(eye=(0.0, 0.0, 6.0), look_at=(0.0, 0.0, 0.0), width=4, height=4)
+    for shapes in ((a, warprt.Plane(point=(0.0, -5.0, 0.0), material="m")), (a, b)):
+        scene = warprt.Scene(camera=camera, shapes=shapes, materials={"m": warprt.Material(kd=0.5)})
+        built = DeviceScene(scene, "cpu")
+        assert (built.data.bvh_root >= 0) == (len([s for s in shapes if isinstance(s, warprt.Rectangle)]) == 2)
+        tr = make_trace(built.features)
+
+        @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+        def k(scene: SceneData, o: wp.array(dtype=wp.vec3, ndim=2), d: wp.array(dtype=wp.vec3, ndim=2),
+              t: wp.array(dtype=float), own: int, alone: wp.array(dtype=float), packet: wp.array(dtype=int)):
+            tm = accel.PacketF()
+            for l in range(8):
+                tm[l] = t[l]
+                alone[l] = tr.transmittance(scene, o[0, l], d[0, l], t[l], 0.0, own)[0]
+            packet[0] = tr.occluded_packet(scene, 8, 255, _lanes(o, 0, 0), _lanes(o, 0, 1), _lanes(o, 0, 2),
+                                           _lanes(d, 0, 0), _lanes(d, 0, 1), _lanes(d, 0, 2), tm, accel.PacketF(),
+                                           accel.PacketI(), accel.PacketI(), own)
+
+        args = [wp.array(o[None], dtype=wp.vec3, device="cpu"), wp.array(d[None], dtype=wp.vec3, device="cpu"),
+                wp.array(t, dtype=float, device="cpu")]
+        through_b = (t > 3.0) if len(shapes) == 2 and isinstance(shapes[1], warprt.Rectangle) else np.zeros(8, bool)
+        beside = np.arange(8) == 7
+        for own, passed in ((-1, beside), (0, beside | ~through_b), (1, beside)):
+            if own == 1 and not through_b.any():
+                continue
+            alone = wp.zeros(8, dtype=float, device="cpu")
+            packet = wp.zeros(1, dtype=int, device="cpu")
+            wp.launch(k, dim=1, device="cpu", inputs=[built.data, *args, own, alone, packet])
+            np.testing.assert_array_equal(alone.numpy() > 0.0, passed)
+            assert int(packet.numpy()[0]) == int(sum(1 << l for l in range(8) if not passed[l])), own

@@ -338,7 +338,7 @@ auto sat = [](float x, float y) {
     return x > 0.0f && y > 0.0f ? (p <= 3.4028234663852886e38f ? p : 3.4028234663852886e38f) : 0.0f;
 };
 for (int l = 0; l < 8; ++l) {
-    if (!((lit >> l) & 1)) continue;
+    if (!((lit >> l) & 1)) continue;  // (not drawn, or blocked)
     const float w = ip[l] / 3.14159265358979323846f;
     out_r[l] = out_r[l] + sat(sat(1.0f, fr[l]), w);
     out_g[l] = out_g[l] + sat(sat(1.0f, fg[l]), w);
@@ -383,6 +383,9 @@ def make_lights(F: Features) -> SimpleNamespace:
         dim = hash2(key, wp.uint32(LIGHT_DIM_BASE + j))
         kind = scene.alights[j].kind
         row = scene.alights[j].shape
+        own_rect = int(-1)  # (a rectangle light's shadow rays never test the rectangle: trace.transmittance)
+        if kind == KIND_RECT:
+            own_rect = row
         prep = prepare_emitter(scene, kind, row, p, n, params.light_sampling)  # once for the ns draws
         if prep.ok == 0:
             return wp.vec4(0.0, 0.0, 0.0, 0.0)  # no light from it reaches p
@@ -397,7 +400,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             if wp.max(f) <= 0.0:
                 continue
             rays += 1
-            T = shadow(scene, origin, e.y, 2.0 * spawn_offset(e.mag), time)
+            T = shadow(scene, origin, e.y, 2.0 * spawn_offset(e.mag), time, own_rect)
             if wp.max(T) <= 0.0:
                 continue
             acc += mul_sat(mul_sat(T, f), wp.vec3(e.inv_pdf / wp.pi))
@@ -523,7 +526,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                     # ``occluded_packet``; without secondary rays nothing is transparent)
                     test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
                     shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
-                                           face)
+                                           face, scene.alights[j].shape)
                     # each lit lane's mul_sat(mul_sat(1, f), ip / π), the 8 at once
                     area_sums(go & ~shut, ip, fr, fg, fb, ar, ag, ab)
                 for k in range(lanes):
@@ -595,7 +598,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             if go == 0:
                 continue
             blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
-                                      face)
+                                      face, -1)
             lit = go & ~blocked
             # each lit lane's mul_sat(1, mul_sat(I, f)), the 8 at once
             inv_sq = int(0)
@@ -645,7 +648,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                     d_sh = to_t / dist_o
                     t_sh = dist_o - stop_short
             if blocked_test:
-                T = transmittance(scene, origin, d_sh, t_sh, time)
+                T = transmittance(scene, origin, d_sh, t_sh, time, -1)
             if wp.max(T) <= 0.0:
                 continue
             I = scene.plights[i].intensity

@@ -1109,9 +1109,12 @@ def make_trace(F: Features) -> SimpleNamespace:
         return T
 
     @wp.func(inline=True)
-    def transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float) -> wp.vec3:
+    def transmittance(scene: SceneData, o: wp.vec3, d: wp.vec3, t_max: float, time: float, own_rect: int) -> wp.vec3:
         """Fraction of light arriving along the shadow ray (o, d) over (0, t_max): 0 when an
-        opaque surface blocks it; transparent surfaces multiply it by their kt per crossing."""
+        opaque surface blocks it; transparent surfaces multiply it by their kt per crossing.
+        Rectangle ``own_rect`` (-1: none) is not tested: the ray ends short of a point of it, an
+        area light's, and a line meets a rectangle's plane once (a point in that plane is no
+        light's: a flat light reaches only what lies in front of it)."""
         T = wp.vec3(1.0, 1.0, 1.0)
         use_bvh = scene.bvh_root >= 0
         if not use_bvh:
@@ -1153,12 +1156,16 @@ def make_trace(F: Features) -> SimpleNamespace:
                     if wp.static(F.solids):
                         T = wp.cw_mul(T, solid_crossings(scene, o, d, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d), t_max,
                                                          time, k, i))
+                elif k == KIND_RECT and i == own_rect:
+                    continue
                 elif bounded_hit(scene, o, d, 0.0, t_max, time, k, i) >= 0.0:
                     T = wp.cw_mul(T, crossing(scene, bounded_mat(scene, k, i)))
                 if wp.max(T) <= 0.0:
                     return wp.vec3(0.0, 0.0, 0.0)
         else:
             for i in range(scene.n_rects):
+                if i == own_rect:  # (the light's own)
+                    continue
                 if intersect_rect(o, d, scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, 0.0, t_max) >= 0.0:
                     T = wp.cw_mul(T, crossing(scene, scene.rects[i].mat))
                     if wp.max(T) <= 0.0:
@@ -1248,7 +1255,7 @@ def make_trace(F: Features) -> SimpleNamespace:
     @wp.func
     def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
                         dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, skip: PacketI,
-                        face: PacketI) -> int:
+                        face: PacketI, own_rect: int) -> int:
         """The lanes (of the bit mask ``lanes``, all below n) whose shadow ray (o, d) over (0, t_max)
         a surface blocks, in a kernel without transparent materials, where ``transmittance`` is 0
         or 1: the spheres (without the analytic BVH), planes and BVH for all lanes at once
@@ -1258,7 +1265,9 @@ def make_trace(F: Features) -> SimpleNamespace:
         and a node test looser than the scalar traversal's only adds leaves to test. A lane k with
         skip[k] = i + 1 leaves face and side face[k] (2 face + side) of instance i, which has
         escape horizons (``accel.escape_horizons``): where its ray passes them it cannot meet
-        that instance's triangles, which are not tested for it (skip 0: none skipped)."""
+        that instance's triangles, which are not tested for it (skip 0: none skipped). The rays
+        end short of a point on rectangle ``own_rect`` (an area light's; -1: none), which they
+        meet nowhere else and which is not tested."""
         blocked = int(0)
         left = lanes
         use_bvh = scene.bvh_root >= 0
@@ -1309,8 +1318,9 @@ def make_trace(F: Features) -> SimpleNamespace:
                 if kk == KIND_SPHERE:
                     hit = sphere_packet(scene, ii, left, ox, oy, oz, dx, dy, dz, t_max, time)
                 elif kk == KIND_RECT:
-                    hit = rect_hits_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, left, ox, oy, oz,
-                                           dx, dy, dz, t_max)
+                    if ii != own_rect:
+                        hit = rect_hits_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, left, ox, oy,
+                                               oz, dx, dy, dz, t_max)
                 else:
                     for k in range(n):
                         if (left >> k) & 1 != 0:
@@ -1336,6 +1346,8 @@ def make_trace(F: Features) -> SimpleNamespace:
         if not use_bvh:
             # without the BVH: the rectangles for all lanes at once, the disks and solids lane by lane
             for i in range(scene.n_rects):
+                if i == own_rect:  # (the light's own: never tested)
+                    continue
                 blocked = blocked | rect_hits_packet(scene.rects[i].c, scene.rects[i].e1, scene.rects[i].e2, left, ox,
                                                      oy, oz, dx, dy, dz, t_max)
                 left = lanes & ~blocked
@@ -1399,14 +1411,16 @@ def make_trace(F: Features) -> SimpleNamespace:
         return blocked
 
     @wp.func(inline=True)
-    def shadow(scene: SceneData, origin: wp.vec3, target: wp.vec3, stop_short: float, time: float) -> wp.vec3:
+    def shadow(scene: SceneData, origin: wp.vec3, target: wp.vec3, stop_short: float, time: float,
+               own_rect: int) -> wp.vec3:
         """Transmittance from ``origin`` to ``target``, ending ``stop_short`` before the target
-        (so the light's own surface never occludes it)."""
+        (so the light's own surface never occludes it; a rectangle light's, ``own_rect``, is not
+        tested at all: ``transmittance``)."""
         to_t = target - origin
         dist = wp.length(to_t)
         if dist <= stop_short:
             return wp.vec3(1.0, 1.0, 1.0)
-        return transmittance(scene, origin, to_t / dist, dist - stop_short, time)
+        return transmittance(scene, origin, to_t / dist, dist - stop_short, time, own_rect)
 
     return SimpleNamespace(closest_hit=closest_hit, trace_packet=trace_packet, finish_hit=finish_hit,
                            mesh_packet=mesh_packet, finish_packet_lane=finish_packet_lane,
