@@ -582,19 +582,20 @@ def make_lights(F: Features) -> SimpleNamespace:
                                    sp.oy, sp.oz, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz, dist,
                                    nl, hl, nh, sx, sy, sz, st)
             go = int(0)
-            for k in range(PACKET):
-                if (m >> k) & 1 == 0:
-                    continue
-                f = wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)) * nl[k]
-                if glossy != 0:
+            if glossy == 0:  # (Lambertian lanes' colours at once, as for the area lights)
+                go = diffuse_lanes(m & 255, sp.kdr, sp.kdg, sp.kdb, nl, fr, fg, fb, out.rays)
+            else:
+                for k in range(PACKET):
+                    if (m >> k) & 1 == 0:
+                        continue
                     f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
-                if wp.max(f) <= 0.0:
-                    continue
-                out.rays[k] += 1
-                fr[k] = f[0]
-                fg[k] = f[1]
-                fb[k] = f[2]
-                go = go | (1 << k)
+                    if wp.max(f) <= 0.0:
+                        continue
+                    out.rays[k] += 1
+                    fr[k] = f[0]
+                    fg[k] = f[1]
+                    fb[k] = f[2]
+                    go = go | (1 << k)
             if go == 0:
                 continue
             blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
