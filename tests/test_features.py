@@ -287,8 +287,9 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     clang vectors, ``shapes.rect_draw_packet``). Every lane's sample must be the one it gets
     alone, bit for bit: rectangles near enough to be drawn by solid angle (which the scalar draw
     takes) and farther ones, a sheared one, lights below some points' horizon and behind others,
-    a sphere and a disk light, one to four samples per light, specular materials, both
-    light-sampling modes, full and part packets, packets over several pixels (adaptive counts),
+    a sphere and a disk light, a rectangle light flush with a ceiling, one to four samples per
+    light, specular materials, both light-sampling modes, full and part packets, packets over
+    several pixels (adaptive counts),
     and with Sobol points drawn for the 8 lanes at once (``sampling.sobol_packet``, and
     ``sobol_split_draw`` for the light with four samples, drawn in quadrant order)."""
     from warprt.trace import PACKET
@@ -303,7 +304,8 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
     shapes = (warprt.Plane(material="floor"), warprt.Mesh(vertices=verts, faces=faces, material="ball"),
               warprt.Sphere(center=(-1.0, 0.3, 0.6), radius=0.3, material="shiny"),
-              warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="wall"))
+              warprt.Rectangle(corner=(0.9, 0.0, -1.2), edge1=(0.0, 0.8, 0.0), edge2=(0.5, 0.0, 0.6), material="wall"),
+              warprt.Plane(point=(0.0, 3.5, 0.0), normal=(0.0, -1.0, 0.0), material="floor"))  # (a ceiling)
     lights = (
         # near the floor: drawn by solid angle below it, by the cosine warp farther off
         # four samples: with Sobol drawn in quadrant order (sampling.sobol_split_draw)
@@ -316,6 +318,9 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
         warprt.DiskLight(center=(0.0, 2.0, 1.5), normal=(0.0, -1.0, -0.3), radius=0.3, radiance=(2.0, 2.0, 2.0),
                          samples=2),
         warprt.PointLight(position=(1.0, 2.0, 2.0), intensity=0.5),
+        # flush with the ceiling: its shadow rays end on the ceiling's plane, short by the stop
+        warprt.RectLight(corner=(-0.5, 3.5, -0.5), edge1=(1.0, 0.0, 0.0), edge2=(0.0, 0.0, 1.0), radiance=(1.5, 1.5, 1.5),
+                         samples=2),
     )
     # (the wall a coloured Lambertian: packets of such lanes take their colours at once, lights.diffuse_lanes)
     materials = {"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40),

@@ -216,12 +216,8 @@ def lobe_packet(lanes: int, lx: PacketF, ly: PacketF, lz: PacketF, gx: PacketF, 
     ...
 
 
-# A point light's share for a packet's lanes in ``lit`` (a bit mask), at once (clang vectors; lane
-# by lane on CUDA), each lane's the scalar loop's bit for bit: its intensity I (over dist² when
-# ``inv_sq``), mul_sat(1, mul_sat(I, f)) for the lane's colour f, added to the lane's sums.
-# mul_sat(x, y) is (x > 0 and y > 0) ? min(x·y, FLT_MAX) : 0 per channel (``shading.mul_sat``).
-_POINT_SUMS = r"""
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
+# (the pieces both share: the lanes' colours and sums as vectors, ``sat``, and ``sat`` for a lane)
+_SUMS_VECTORS = r"""
 typedef float v8 __attribute__((ext_vector_type(8)));
 typedef int i8 __attribute__((ext_vector_type(8)));
 const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lit) != 0;
@@ -230,22 +226,45 @@ auto sat = [&](v8 x, v8 y) {
     const v8 p = x * y;
     return ((x > 0.0f) & (y > 0.0f)) ? (p <= big ? p : big) : zero;
 };
-v8 D, F0, F1, F2, O0, O1, O2;
-__builtin_memcpy(&D, &dist, 32);
+v8 F0, F1, F2, O0, O1, O2;
 __builtin_memcpy(&F0, &fr, 32); __builtin_memcpy(&F1, &fg, 32); __builtin_memcpy(&F2, &fb, 32);
 __builtin_memcpy(&O0, &out_r, 32); __builtin_memcpy(&O1, &out_g, 32); __builtin_memcpy(&O2, &out_b, 32);
+"""
+_SUMS_STORE = r"""
+__builtin_memcpy(&out_r, &O0, 32); __builtin_memcpy(&out_g, &O1, 32); __builtin_memcpy(&out_b, &O2, 32);
+"""
+_SAT_LANE = r"""
+auto sat = [](float x, float y) {
+    const float p = x * y;
+    return x > 0.0f && y > 0.0f ? (p <= 3.4028234663852886e38f ? p : 3.4028234663852886e38f) : 0.0f;
+};
+"""
+
+
+def _sums(snippet: str) -> str:
+    """A sums snippet with the shared pieces (``@VECTORS@``, ``@STORE@``, ``@SAT_LANE@``) in place."""
+    return snippet.replace("@VECTORS@\n", _SUMS_VECTORS.lstrip("\n")).replace(
+        "@STORE@\n", _SUMS_STORE.lstrip("\n")).replace("@SAT_LANE@\n", _SAT_LANE.lstrip("\n"))
+
+
+# A point light's share for a packet's lanes in ``lit`` (a bit mask), at once (clang vectors; lane
+# by lane on CUDA), each lane's the scalar loop's bit for bit: its intensity I (over dist² when
+# ``inv_sq``), mul_sat(1, mul_sat(I, f)) for the lane's colour f, added to the lane's sums.
+# mul_sat(x, y) is (x > 0 and y > 0) ? min(x·y, FLT_MAX) : 0 per channel (``shading.mul_sat``).
+_POINT_SUMS = _sums(r"""
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+@VECTORS@
+v8 D;
+__builtin_memcpy(&D, &dist, 32);
 const v8 dd = D * D;
 const v8 I0 = inv_sq ? intensity[0] / dd : (v8)(intensity[0]);
 const v8 I1 = inv_sq ? intensity[1] / dd : (v8)(intensity[1]);
 const v8 I2 = inv_sq ? intensity[2] / dd : (v8)(intensity[2]);
 const v8 L0 = sat(one, sat(I0, F0)), L1 = sat(one, sat(I1, F1)), L2 = sat(one, sat(I2, F2));
 O0 = on ? O0 + L0 : O0; O1 = on ? O1 + L1 : O1; O2 = on ? O2 + L2 : O2;
-__builtin_memcpy(&out_r, &O0, 32); __builtin_memcpy(&out_g, &O1, 32); __builtin_memcpy(&out_b, &O2, 32);
+@STORE@
 #else
-auto sat = [](float x, float y) {
-    const float p = x * y;
-    return x > 0.0f && y > 0.0f ? (p <= 3.4028234663852886e38f ? p : 3.4028234663852886e38f) : 0.0f;
-};
+@SAT_LANE@
 for (int l = 0; l < 8; ++l) {
     if (!((lit >> l) & 1)) continue;
     const float dd = dist[l] * dist[l];
@@ -255,7 +274,7 @@ for (int l = 0; l < 8; ++l) {
     out_r[l] = out_r[l] + L[0]; out_g[l] = out_g[l] + L[1]; out_b[l] = out_b[l] + L[2];
 }
 #endif
-"""
+""")
 
 
 @wp.func_native(_POINT_SUMS)
@@ -314,29 +333,17 @@ def diffuse_lanes(lanes: int, kdr: PacketF, kdg: PacketF, kdb: PacketF, nl: Pack
 # vectors; lane by lane on CUDA), each lane's the scalar loop's bit for bit:
 # mul_sat(mul_sat(1, f), ip / π) for its colour f and weight ip, added to its sums (``_POINT_SUMS``'
 # ``sat``).
-_AREA_SUMS = r"""
+_AREA_SUMS = _sums(r"""
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef float v8 __attribute__((ext_vector_type(8)));
-typedef int i8 __attribute__((ext_vector_type(8)));
-const i8 on = ((i8){1, 2, 4, 8, 16, 32, 64, 128} & lit) != 0;
-const v8 zero = 0.0f, big = 3.4028234663852886e38f, one = 1.0f;
-auto sat = [&](v8 x, v8 y) {
-    const v8 p = x * y;
-    return ((x > 0.0f) & (y > 0.0f)) ? (p <= big ? p : big) : zero;
-};
-v8 W, F0, F1, F2, O0, O1, O2;
+@VECTORS@
+v8 W;
 __builtin_memcpy(&W, &ip, 32);
-__builtin_memcpy(&F0, &fr, 32); __builtin_memcpy(&F1, &fg, 32); __builtin_memcpy(&F2, &fb, 32);
-__builtin_memcpy(&O0, &out_r, 32); __builtin_memcpy(&O1, &out_g, 32); __builtin_memcpy(&O2, &out_b, 32);
 W = W / 3.14159265358979323846f;
 const v8 L0 = sat(sat(one, F0), W), L1 = sat(sat(one, F1), W), L2 = sat(sat(one, F2), W);
 O0 = on ? O0 + L0 : O0; O1 = on ? O1 + L1 : O1; O2 = on ? O2 + L2 : O2;  // (the lanes no shadow ray was blocked for)
-__builtin_memcpy(&out_r, &O0, 32); __builtin_memcpy(&out_g, &O1, 32); __builtin_memcpy(&out_b, &O2, 32);
+@STORE@
 #else
-auto sat = [](float x, float y) {
-    const float p = x * y;
-    return x > 0.0f && y > 0.0f ? (p <= 3.4028234663852886e38f ? p : 3.4028234663852886e38f) : 0.0f;
-};
+@SAT_LANE@
 for (int l = 0; l < 8; ++l) {
     if (!((lit >> l) & 1)) continue;  // (not drawn, or blocked)
     const float w = ip[l] / 3.14159265358979323846f;
@@ -345,7 +352,7 @@ for (int l = 0; l < 8; ++l) {
     out_b[l] = out_b[l] + sat(sat(1.0f, fb[l]), w);
 }
 #endif
-"""
+""")
 
 
 @wp.func_native(_AREA_SUMS)
