@@ -288,10 +288,10 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
     alone, bit for bit: rectangles near enough to be drawn by solid angle (which the scalar draw
     takes) and farther ones, a sheared one, lights below some points' horizon and behind others,
     a sphere and a disk light, a rectangle light flush with a ceiling, one to four samples per
-    light, specular materials, both light-sampling modes, full and part packets, packets over
-    several pixels (adaptive counts),
-    and with Sobol points drawn for the 8 lanes at once (``sampling.sobol_packet``, and
-    ``sobol_split_draw`` for the light with four samples, drawn in quadrant order)."""
+    light, specular materials (and a coloured Lambertian one), both light-sampling modes, full and
+    part packets, packets over several pixels (adaptive counts), and with Sobol points drawn for
+    the 8 lanes at once (``sampling.sobol_packet``, and ``sobol_split_draw`` for the light with
+    four samples, drawn in quadrant order)."""
     from warprt.trace import PACKET
 
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),

@@ -34,10 +34,10 @@ a third of a camera sample (camera ray, hit, shading, film) on the peer benchmar
 (2 workers, wall ms at 8 spp for N = 1, 2, 4, 8, a line fitted through them: 40, 50, 69, 109 on
 the penumbrae, C_cam / C_light = 3.1; 52, 62, 83, 127 through the thin lens, 3.8; 67, 90, 133,
 222 on the 328k-triangle mesh, 2.1, whose shadow rays cross a deep tree; the median is taken).
-Measured when the shadow rays had become cheaper than at first (2.1–2.2 on all three): with 3.1
-the thin lens takes 4 shadow rays instead of 2, its error × time 0.72–0.84× at 2–16 spp
-(docs/benchmarks.md, levers). With several "auto" lights each takes N, and a unit of N costs one
-light sample per such light.
+Measured again once the shadow rays had become cheaper (at first: 2.2 on the penumbrae, 2.1 on
+the mesh): with 3.1 the thin lens takes 4 shadow rays instead of 2, its error × time 0.72–0.84×
+at 2–16 spp (docs/benchmarks.md, levers). With several "auto" lights each takes N, and a unit of
+N costs one light sample per such light.
 
 The choice is made once per renderer (the split is the scene's, not the render's) and is
 independent of the seed, spp and workers.
