@@ -379,13 +379,6 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane(device):
 
     def kernel_for(sph, pln, rct, box, shd, pl, lob):
         @wp.func
-        def pk(a: wp.array(dtype=wp.vec3, ndim=2), i: int, c: int) -> accel.PacketF:
-            v = accel.PacketF()
-            for k in range(accel.PACKET):
-                v[k] = a[i, k][c]
-            return v
-
-        @wp.func
         def pkf(a: wp.array(dtype=float, ndim=2), i: int) -> accel.PacketF:
             v = accel.PacketF()
             for k in range(accel.PACKET):
@@ -401,8 +394,8 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane(device):
               vv: wp.array(dtype=wp.vec3, ndim=2), pos: wp.array(dtype=wp.vec3), stop: wp.array(dtype=float),
               directional: wp.array(dtype=int), lanes: wp.array(dtype=int), out: wp.array(dtype=int, ndim=2)):
             i = wp.tid()
-            ox, oy, oz = pk(o, i, 0), pk(o, i, 1), pk(o, i, 2)
-            dx, dy, dz = pk(d, i, 0), pk(d, i, 1), pk(d, i, 2)
+            ox, oy, oz = _lanes(o, i, 0), _lanes(o, i, 1), _lanes(o, i, 2)
+            dx, dy, dz = _lanes(d, i, 0), _lanes(d, i, 1), _lanes(d, i, 2)
             t_max = pkf(tm, i)
             time = pkf(tt, i)
             m = lanes[i]
@@ -417,9 +410,9 @@ def test_a_packets_shadow_tests_equal_the_scalar_tests_lane_by_lane(device):
             yz = accel.PacketF(c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2], c0[i][2])
             out[i, 4] = shd(m, ox, oy, oz, yx, yy, yz, stop[i], sx, sy, sz, st)
             # the point light at pos seen from p = o (its shadow rays from o + 0.01 g)
-            gx, gy, gz = pk(gn, i, 0), pk(gn, i, 1), pk(gn, i, 2)
-            nx, ny, nz = pk(sn, i, 0), pk(sn, i, 1), pk(sn, i, 2)
-            vx, vy, vz = pk(vv, i, 0), pk(vv, i, 1), pk(vv, i, 2)
+            gx, gy, gz = _lanes(gn, i, 0), _lanes(gn, i, 1), _lanes(gn, i, 2)
+            nx, ny, nz = _lanes(sn, i, 0), _lanes(sn, i, 1), _lanes(sn, i, 2)
+            vx, vy, vz = _lanes(vv, i, 0), _lanes(vv, i, 1), _lanes(vv, i, 2)
             qx, qy, qz = ox + gx * 0.01, oy + gy * 0.01, oz + gz * 0.01
             ld, lnl, lhl, lnh, lx, ly, lz, lt_ = (accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF(),
                                                  accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketF())
