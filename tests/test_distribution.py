@@ -455,6 +455,38 @@ def test_adaptive_shares_round_to_integers_keeping_their_sum_largest_parts_first
         assert np.all(np.abs(got - x) < 1.0)
 
 
+def test_adaptive_counts_by_native_code_match_numpys():
+    """On the CPU ``adaptive_counts`` runs as one pass of native code (``film.pilot_counts``); its
+    counts must be numpy's (``film._counts``, what a CUDA film takes) pixel for pixel: films of
+    1 × 1 to 37 × 23 pixels (every pixel within 2 of an edge, or not), pilots of 1, 2 and 4
+    samples, noisy sums, equal sums (every share alike: the rounding's one bucket holds them
+    all, ties to the lower index), sums all zero (no deviation: the budget as it is) and a few
+    bright pixels among dark ones (shares capped at ADAPTIVE_MAX_FACTOR × spp)."""
+    from warprt.film import ADAPTIVE_MIN_SHARE, _LUMA, Film, _counts, adaptive_counts
+
+    rng = np.random.default_rng(7)
+    for w, h in [(1, 1), (2, 3), (5, 5), (4, 7), (6, 9), (17, 9), (37, 23)]:
+        for n0, spp in [(1, 2), (2, 4), (4, 8), (4, 64)]:
+            for kind in ("noise", "equal", "zero", "sparse"):
+                acc = rng.random((w * h, 3), dtype=np.float32) * rng.exponential(2.0, (w * h, 1)).astype(np.float32)
+                if kind == "equal":
+                    acc[:] = 0.5
+                elif kind == "zero":
+                    acc[:] = 0.0
+                elif kind == "sparse":
+                    acc[rng.random(w * h) < 0.95] = 0.0
+                y = acc @ _LUMA
+                spread = rng.uniform(1.0, 3.0, w * h) if kind in ("noise", "sparse") else 1.0
+                f = Film(w, h, "cpu")
+                f.data.accum.assign(acc * n0)
+                f.data.accum_sq.assign((y * y * spread * n0).astype(np.float32))
+                got = adaptive_counts(f, n0, spp)
+                want = _counts(f, n0, spp, max(1, n0, spp // ADAPTIVE_MIN_SHARE))
+                np.testing.assert_array_equal(got, want, err_msg=f"{w}x{h}, pilot {n0}, {spp} spp, {kind}")
+                if kind == "noise" and w * h >= 25:
+                    assert got.max() > got.min()  # (shared unevenly: the rounding and the caps at work)
+
+
 @pytest.mark.parametrize("n0, spp", [(4, 16), (1, 2)], ids=["pilot of 4", "pilot of 1"])
 def test_adaptive_counts_never_read_the_pixels_own_samples(n0, spp):
     """A pixel's count, and those of every pixel of its checkerboard colour, must not change when

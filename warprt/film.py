@@ -134,8 +134,8 @@ def packet_samples(r: PacketF, g: PacketF, b: PacketF, ar: PacketF, ag: PacketF,
 
 @build_once
 def _image_kernels():
-    """Both image kernels, defined together so that the Warp module ``warprt_film`` always holds
-    the same two (whichever is used first)."""
+    """The film's kernels (both images and the adaptive pilot's deviations), defined together so
+    that the Warp module ``warprt_film`` always holds the same three (whichever is used first)."""
 
     @wp.kernel(module="warprt_film", enable_backward=False)
     def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
@@ -158,7 +158,16 @@ def _image_kernels():
         out[y, x, 1] = c[1]
         out[y, x, 2] = c[2]
 
-    return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel)
+    @wp.kernel(module="warprt_film", enable_backward=False)
+    def counts_kernel(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
+                      n0: int, inv_n: float, unbias: float, near_weight: float, spp: int, n_min: int, cap: float,
+                      ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
+                      shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
+                      counts: wp.array(dtype=int)):
+        pilot_counts(accum, accum_sq, width, height, n0, inv_n, unbias, near_weight, spp, n_min, cap, ys, vs, nb,
+                     shares, where, bucket, counts)
+
+    return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel, counts=counts_kernel)
 
 
 class Film:
@@ -179,7 +188,11 @@ class Film:
         self.data.claims = wp.zeros(1, dtype=int, device=device)
         # (on the CPU a numpy view of the counter, for reset_claims)
         self._claims = self.data.claims.numpy() if self.data.claims.device.is_cpu else None
+        # (and of the sample caps, which adaptive renders set and clear: Warp's assign and fill_
+        # took 0.1-0.2 ms each)
+        self._limit = self.data.limit.numpy() if self.data.limit.device.is_cpu else None
         self.counts: np.ndarray | None = None  # per-pixel sample counts (adaptive sampling)
+        self._scratch: list | None = None  # (``pilot_counts``' arrays)
 
     def reset_claims(self) -> None:
         """No block of rows handed out yet (before each CPU pass whose launches claim them)."""
@@ -191,13 +204,33 @@ class Film:
     def clear_counts(self) -> None:
         """No per-pixel sample cap any more (a reused film after an adaptive render)."""
         if self.counts is not None:
-            self.data.limit.fill_(NO_LIMIT)
+            if self._limit is not None:
+                self._limit.fill(NO_LIMIT)
+            else:
+                self.data.limit.fill_(NO_LIMIT)
             self.counts = None
 
     def set_counts(self, counts: np.ndarray) -> None:
         """Let pixel i take at most counts[i] samples (adaptive sampling; counts >= 1)."""
         self.counts = np.ascontiguousarray(counts, dtype=np.int32).reshape(-1)
-        self.data.limit.assign(self.counts)
+        if self._limit is not None:
+            self._limit[:] = self.counts
+        else:
+            self.data.limit.assign(self.counts)
+
+    def pilot_counts(self, n0: int, spp: int, n_min: int, cap: float) -> np.ndarray:
+        """``adaptive_counts`` of a CPU film, by one single-thread pass of native code (its scratch
+        kept with the film; numpy's dozens of passes took 1-2 ms while every worker waited)."""
+        if self._scratch is None:
+            n = self.width * self.height
+            self._scratch = ([wp.empty(n, dtype=float, device=self.device) for _ in range(3)]
+                             + [wp.empty(n, dtype=wp.float64, device=self.device)]
+                             + [wp.empty(n, dtype=int, device=self.device) for _ in range(3)])
+        wp.launch(_image_kernels().counts, dim=1, device=self.device,
+                  inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
+                          float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
+                          ADAPTIVE_NEAR_WEIGHT, int(spp), int(n_min), float(cap), *self._scratch])
+        return self._scratch[-1].numpy().copy()
 
     def image(self, spp: int) -> np.ndarray:
         """The mean of the samples, (H, W, 3) float32 on the host (each pixel over its own count
@@ -249,6 +282,225 @@ ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass cost
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
 ADAPTIVE_NEAR_WEIGHT = 6.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
+ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
+
+
+# Adaptive sampling's pilot deviations (``adaptive_counts``) in one pass over the film on the CPU:
+# ``_deviations``' numpy operations in the same order on the same float32 values (bit for bit),
+# between the pilot and the main passes while every worker waits (numpy's dozens of passes over
+# the film took about a millisecond). Each pixel's luminance y and its variance (or y², for a
+# pilot of one sample) first, then each pixel's weighted sums over the other colour's 12
+# neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in that order, 0 outside the image).
+_DEVIATIONS = r"""
+#if !defined(__CUDA_ARCH__)
+const float* acc = reinterpret_cast<const float*>(accum.data);
+const float* sq = accum_sq.data;
+float* Y = ys.data;
+float* V = vs.data;
+float* out = nb.data;
+const int n = width * height;
+for (int i = 0; i < n; ++i) {
+    float y = acc[3 * i] * 0.2126f;
+    const float y1 = acc[3 * i + 1] * 0.7152f;
+    y = y + y1;
+    const float y2 = acc[3 * i + 2] * 0.0722f;
+    y = y + y2;
+    Y[i] = y * inv_n;
+}
+if (n0 >= 2) {
+    for (int i = 0; i < n; ++i) {
+        float v = sq[i] * inv_n;
+        const float yy = Y[i] * Y[i];
+        v = v - yy;
+        v = v < 0.0f ? 0.0f : v;  // (numpy's maximum keeps a NaN)
+        V[i] = v * unbias;
+    }
+} else {
+    for (int i = 0; i < n; ++i) V[i] = Y[i] * Y[i];
+}
+// a pixel's deviation from its neighbours' weighted sums: near and far each added up in
+// ADAPTIVE_NEIGHBOURS' order from 0, a neighbour outside the image adding 0
+auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt) -> float {
+    float sv = near_weight * near_v;
+    sv = sv + far_v;
+    sv = sv / wt;
+    float d = sv;
+    if (n0 < 2) {
+        float sy = near_weight * near_y;
+        sy = sy + far_y;
+        sy = sy / wt;
+        const float m2 = sy * sy;
+        d = sv - m2;
+        d = d < 0.0f ? 0.0f : d;
+    }
+    return sqrtf(d);
+};
+// near the image's edges, each neighbour checked
+static const int DR[12] = {@DR@};
+static const int DC[12] = {@DC@};
+static const bool NEAR[12] = {@NEAR@};
+auto edge_pixel = [&](int r, int c) {
+    float near_v = 0.0f, far_v = 0.0f, near_y = 0.0f, far_y = 0.0f, near_w = 0.0f, far_w = 0.0f;
+    for (int k = 0; k < 12; ++k) {
+        const int rr = r + DR[k], cc = c + DC[k];
+        const bool in = rr >= 0 && rr < height && cc >= 0 && cc < width;
+        const float v = in ? V[rr * width + cc] : 0.0f;
+        const float y = in ? Y[rr * width + cc] : 0.0f;
+        const float w = in ? 1.0f : 0.0f;
+        if (NEAR[k]) {
+            near_v = near_v + v; near_y = near_y + y; near_w = near_w + w;
+        } else {
+            far_v = far_v + v; far_y = far_y + y; far_w = far_w + w;
+        }
+    }
+    float wt = near_weight * near_w;
+    wt = wt + far_w;
+    wt = wt < 1.0f ? 1.0f : wt;
+    out[r * width + c] = finish(near_v, far_v, near_y, far_y, wt);
+};
+// inside, every neighbour in the image: straight-line sums over rows r - 2 ... r + 2
+float wt_in = near_weight * 4.0f;
+wt_in = wt_in + 8.0f;
+for (int r = 0; r < height; ++r) {
+    if (r < 2 || r >= height - 2 || width < 5) {
+        for (int c = 0; c < width; ++c) edge_pixel(r, c);
+        continue;
+    }
+    edge_pixel(r, 0);
+    edge_pixel(r, 1);
+    const float* v0 = V + r * width;
+    const float* y0 = Y + r * width;
+    float* o = out + r * width;
+    if (n0 >= 2) {
+        for (int c = 2; c < width - 2; ++c) {
+@SUMS_V@
+            float sv = near_weight * near_v;
+            sv = sv + far_v;
+            sv = sv / wt_in;
+            o[c] = sqrtf(sv);
+        }
+    } else {
+        for (int c = 2; c < width - 2; ++c) {
+@SUMS_V@
+@SUMS_Y@
+            o[c] = finish(near_v, far_v, near_y, far_y, wt_in);
+        }
+    }
+    edge_pixel(r, width - 2);
+    edge_pixel(r, width - 1);
+}
+// each colour's shares and their rounding (adaptive_counts and _round_keeping_sum, float64, the
+// sums added in order): the colour's pixels in flat order, then each pixel's count
+double* S = shares.data;
+int* P = where.data;
+int* B = bucket.data;
+int* N = counts.data;
+int hist[@BUCKETS@];
+// floor of a share (at least 1, below 2^31) or of a sum of their fractional parts
+auto down = [](double x) -> double { return (double)(long long)x; };
+for (int col = 0; col < 2; ++col) {
+    int m = 0;
+    for (int r = 0; r < height; ++r)
+        for (int c = (r + col) & 1; c < width; c += 2) {
+            P[m] = r * width + c;
+            S[m] = (double)out[r * width + c];
+            ++m;
+        }
+    double total = 0.0;
+    for (int k = 0; k < m; ++k) total = total + S[k];
+    if (!(total > 0.0 && total - total == 0.0)) {  // (zero, NaN or infinite: the budget as it is)
+        for (int k = 0; k < m; ++k) N[P[k]] = spp;
+        continue;
+    }
+    const double scale = (double)(spp - n_min) * (double)m;
+    double sum_x = 0.0, sum_base = 0.0;
+    for (int k = 0; k < m; ++k) {
+        const double t = scale * S[k];
+        double x = (double)n_min + t / total;
+        x = x < cap ? x : cap;
+        S[k] = x;
+        sum_x = sum_x + x;
+        sum_base = sum_base + down(x);
+    }
+    // extra: round(sum_x - sum_base), halves to even
+    const double d = sum_x - sum_base;
+    double e = down(d);
+    const double half = d - e;
+    if (half > 0.5 || (half == 0.5 && ((long long)e & 1) != 0)) e = e + 1.0;
+    const int extra = (int)e;
+    for (int k = 0; k < m; ++k) N[P[k]] = (int)down(S[k]);
+    if (extra <= 0) continue;
+    for (int j = 0; j < @BUCKETS@; ++j) hist[j] = 0;
+    for (int k = 0; k < m; ++k) {
+        const double f = S[k] - down(S[k]);
+        hist[(int)(f * (double)(@BUCKETS@ - 1))] += 1;
+    }
+    int from_top = 0, b = 0;
+    for (int j = @BUCKETS@ - 1; j >= 0; --j) {
+        if (from_top + hist[j] >= extra) { b = j; break; }
+        from_top += hist[j];
+    }
+    const int rest = extra - from_top;  // (from_top: the parts in the buckets above b)
+    int nb_b = 0;
+    for (int k = 0; k < m; ++k) {
+        const double f = S[k] - down(S[k]);
+        const int q = (int)(f * (double)(@BUCKETS@ - 1));
+        N[P[k]] += q > b ? 1 : 0;  // (without branches: which side a part falls is a coin toss)
+        B[nb_b] = k;
+        nb_b += q == b ? 1 : 0;
+    }
+    // bucket b's parts, largest first and then the lower index: heapsort, then the first rest
+    auto before = [&](int a, int z) -> bool {
+        const double fa = S[a] - down(S[a]), fz = S[z] - down(S[z]);
+        return fa > fz || (fa == fz && a < z);
+    };
+    auto sift = [&](int root, int end) {
+        while (2 * root + 1 < end) {
+            int child = 2 * root + 1;
+            if (child + 1 < end && before(B[child], B[child + 1])) child += 1;
+            if (!before(B[root], B[child])) return;
+            const int t = B[root]; B[root] = B[child]; B[child] = t;
+            root = child;
+        }
+    };
+    for (int start = nb_b / 2 - 1; start >= 0; --start) sift(start, nb_b);
+    for (int end = nb_b - 1; end > 0; --end) {
+        const int t = B[0]; B[0] = B[end]; B[end] = t;
+        sift(0, end);
+    }
+    for (int k = 0; k < rest && k < nb_b; ++k) N[P[B[k]]] += 1;
+}
+#endif
+"""
+
+
+def _sums_code(a: str) -> str:
+    """``_DEVIATIONS``' straight-line neighbour sums of row pointer ``a``0 (``V`` or ``Y``'s row r)."""
+    out = []
+    for part, near in (("near", True), ("far", False)):
+        out.append(f"            float {part}_{a.lower()} = 0.0f;")
+        for dr, dc in ADAPTIVE_NEIGHBOURS:
+            if (abs(dr) + abs(dc) == 1) == near:
+                out.append(f"            {part}_{a.lower()} = {part}_{a.lower()} + {a.lower()}0[{dr} * width + c + {dc}];")
+    return "\n".join(out)
+
+
+_DEVIATIONS = (_DEVIATIONS.replace("@DR@", ", ".join(str(a) for a, b in ADAPTIVE_NEIGHBOURS))
+               .replace("@DC@", ", ".join(str(b) for a, b in ADAPTIVE_NEIGHBOURS))
+               .replace("@NEAR@", ", ".join("true" if abs(a) + abs(b) == 1 else "false" for a, b in ADAPTIVE_NEIGHBOURS))
+               .replace("@SUMS_V@", _sums_code("V")).replace("@SUMS_Y@", _sums_code("Y"))
+               .replace("@BUCKETS@", str(ROUND_BUCKETS)))
+
+
+@wp.func_native(_DEVIATIONS)
+def pilot_counts(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
+                 n0: int, inv_n: float, unbias: float, near_weight: float, spp: int, n_min: int, cap: float,
+                 ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
+                 shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
+                 counts: wp.array(dtype=int)):
+    """``adaptive_counts`` into ``counts`` (see above; the other arrays are scratch, ``nb`` the
+    deviations)."""
+    ...
 
 
 def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
@@ -269,19 +521,21 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     total), with every pixel at least max(n0, spp / ADAPTIVE_MIN_SHARE) and at most
     ADAPTIVE_MAX_FACTOR × spp; the normaliser of a colour is itself a function of the other
     colour's samples."""
-    h, w = film.height, film.width
-    weights, colours = _adaptive_layout(h, w)
-    y, var = _pilot_stats(film, n0)
-    if n0 >= 2:
-        nb = np.sqrt(_neighbour_sum(var, h, w) / weights)
-    else:
-        mean = _neighbour_sum(y, h, w) / weights
-        nb = np.sqrt(np.maximum(_neighbour_sum(y * y, h, w) / weights - mean * mean, 0.0))
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
+    if film.data.accum.device.is_cpu:  # (the same numbers by native code, see pilot_counts)
+        return film.pilot_counts(n0, spp, n_min, ADAPTIVE_MAX_FACTOR * spp)
+    return _counts(film, n0, spp, n_min)
+
+
+def _counts(film: Film, n0: int, spp: int, n_min: int) -> np.ndarray:
+    """``adaptive_counts`` with numpy (a CUDA film's, copied to the host)."""
+    h, w = film.height, film.width
+    _, colours = _adaptive_layout(h, w)
+    nb = _deviations(film, n0)
     counts = np.full(h * w, spp, dtype=np.int32)
     for mine in colours:
         dev = nb[mine].astype(np.float64)  # the shares in float64: the budget must add up exactly
-        total = float(dev.sum())
+        total = _sum_in_order(dev)
         if total > 0.0 and math.isfinite(total):
             share = np.minimum(n_min + float(spp - n_min) * mine.size * dev / total, ADAPTIVE_MAX_FACTOR * spp)
             counts[mine] = _round_keeping_sum(share)
@@ -291,26 +545,40 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
 _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
 
-def _pilot_stats(film: Film, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``Film.luminance_stats`` in float32 (the sums it reads are float32 already), computed in
-    place: it runs between the pilot and the main passes, while every worker waits."""
-    y = film.data.accum.numpy() @ _LUMA
-    y *= np.float32(1.0 / n)
-    var = film.data.accum_sq.numpy() * np.float32(1.0 / n)
-    var -= y * y
-    np.maximum(var, np.float32(0.0), out=var)
-    var *= np.float32(n / max(n - 1, 1))
-    return y, var
+def _deviations(film: Film, n0: int) -> np.ndarray:
+    """Each pixel's deviation for ``adaptive_counts`` from a film holding ``n0`` samples of every
+    pixel, float32, with numpy (on the CPU ``Film.deviations`` computes the same numbers in one
+    pass): the root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS, or with one sample
+    a pixel, the weighted spread of their values about their weighted mean."""
+    h, w = film.height, film.width
+    weights = _adaptive_layout(h, w)[0]
+    acc = film.data.accum.numpy()
+    y = acc[:, 0] * _LUMA[0]  # (each pixel's luminance in this order, as the CPU's pass)
+    y += acc[:, 1] * _LUMA[1]
+    y += acc[:, 2] * _LUMA[2]
+    y *= np.float32(1.0 / n0)
+    if n0 >= 2:
+        var = film.data.accum_sq.numpy() * np.float32(1.0 / n0)
+        var -= y * y
+        np.maximum(var, np.float32(0.0), out=var)
+        var *= np.float32(n0 / max(n0 - 1, 1))
+        return np.sqrt(_neighbour_sum(var, h, w) / weights)
+    mean = _neighbour_sum(y, h, w) / weights
+    return np.sqrt(np.maximum(_neighbour_sum(y * y, h, w) / weights - mean * mean, 0.0))
 
 
-ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
+
+
+def _sum_in_order(x: np.ndarray) -> float:
+    """Σ x added first to last (numpy's sum adds in pairs), as ``pilot_counts`` adds."""
+    return float(np.cumsum(x)[-1]) if x.size else 0.0
 
 
 def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     """Integers within 1 of x (>= 0) whose sum is round(Σ x): the floors, plus one for the largest
     fractional parts (ties to the lower index), so that a small budget keeps its mean."""
     base = np.floor(x)
-    extra = int(round(float(x.sum()) - float(base.sum())))
+    extra = int(round(_sum_in_order(x) - _sum_in_order(base)))
     if extra > 0:
         # the extra largest fractional parts in linear time: a histogram of the parts in
         # ROUND_BUCKETS buckets finds the bucket the extra-th falls in; every part in a higher
