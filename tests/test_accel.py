@@ -1219,6 +1219,33 @@ _HORIZON_SHARE = {"torus": 0.555, "bumpy torus": 0.187, "bumpy sphere": 0.389, "
                   "box with a raised vertex": 0.614, "icosphere wound inwards": 0.643}
 
 
+def _horizon_reference(h, code, d):
+    """``accel.horizon_escapes`` for rays along d (float32) from face and side ``code``, with
+    numpy's float32 operations in the order the C++ took before its frames were stored: the
+    face's normal A (negated for side 1), then t across A and the axis of A's least component,
+    b = A x t, and the sector of (d.t, d.b) found by the branches of its octants."""
+    f32 = np.float32
+    a = h[code // 2, :3].copy().view(np.float32) * np.where(code % 2 == 1, f32(-1.0), f32(1.0))[:, None]
+    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
+    da = dx * a[:, 0] + dy * a[:, 1] + dz * a[:, 2]
+    m = np.abs(a)
+    ax = np.where(m[:, 0] <= m[:, 1], np.where(m[:, 0] <= m[:, 2], 0, 2), np.where(m[:, 1] <= m[:, 2], 1, 2))
+    zero = np.zeros(len(a), f32)
+    t = np.where((ax == 0)[:, None], np.stack([zero, a[:, 2], -a[:, 1]], 1),
+                 np.where((ax == 1)[:, None], np.stack([-a[:, 2], zero, a[:, 0]], 1), np.stack([a[:, 1], -a[:, 0], zero], 1)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = t * (f32(1.0) / np.sqrt(t[:, 0] * t[:, 0] + t[:, 1] * t[:, 1] + t[:, 2] * t[:, 2]))[:, None]
+    b = np.stack([a[:, 1] * t[:, 2] - a[:, 2] * t[:, 1], a[:, 2] * t[:, 0] - a[:, 0] * t[:, 2],
+                  a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0]], 1)
+    x = dx * t[:, 0] + dy * t[:, 1] + dz * t[:, 2]
+    y = dx * b[:, 0] + dy * b[:, 1] + dz * b[:, 2]
+    sector = np.where(y >= 0, np.where(x > 0, np.where(y < x, 0, 1), np.where(y > -x, 2, 3)),
+                      np.where(x < 0, np.where(-y < -x, 4, 5), np.where(x < -y, 6, 7)))
+    q = h[code // 2, 4:8].copy().view(np.uint8).reshape(-1, 2, 8)[np.arange(len(code)), code % 2, sector]
+    hq = q.astype(f32) * (f32(1.0) / f32(255.0))
+    return ((da > 0) & (q != 255) & (da * da > hq * hq * (dx * dx + dy * dy + dz * dz))).astype(int)
+
+
 @pytest.mark.parametrize("name", list(_HORIZON_SHARE))
 def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(name):
     """``accel.escape_horizons`` and ``horizon_escapes``: rays from points of the faces, spawned
@@ -1232,7 +1259,7 @@ def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(n
                    indices=wp.array(f.reshape(-1), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
     tree = accel.MeshTree(mesh, len(f))
     h = accel.escape_horizons(tree, v, f)
-    assert h is not None and h.shape == (len(f), 8)
+    assert h is not None and h.shape == (len(f), accel.ESCAPE_WORDS)
     sectors = h[:, 4:8].copy().view(np.uint8).reshape(len(f), 2, 8)
     known = accel.escape_sides(v, f)
     if known is not None:
@@ -1264,6 +1291,8 @@ def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(n
         wp.array(t_max.astype(np.float32), dtype=float, device="cpu"), out])
     blocked, passes, is_open = out.numpy().T
     assert (blocked >= 0).all()
+    # the stored frames and the sectors found without branches decide as the per-ray frame does
+    np.testing.assert_array_equal(passes, _horizon_reference(h, code, d.astype(np.float32)))
     assert blocked[passes == 1].sum() == 0, f"{int(blocked[passes == 1].sum())} rays above their horizon blocked"
     assert np.all(passes[is_open == 0] == 0)
     assert blocked.sum() > 50  # (the rays find the mesh where they may)

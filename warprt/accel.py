@@ -1390,12 +1390,16 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
 # float32 test's rounding); a side whose every sector reaches HORIZON_GIVE_UP is closed. Closed
 # meshes get their outer side only (the inner one serves a camera inside the solid, where every
 # direction meets the mesh soon). Each face: its unit normal (float32, the axis both the bounds
-# and the test use), a word of flags (bit s: side s has an open sector), and 8 bytes per side.
+# and the test use), a word of flags (bit s: side s has an open sector), 8 bytes per side, and the
+# sectors' frame in float32 (``escape_frames``: made once here rather than by every ray's test).
 HORIZON_MARGIN = 2.0e-3
 HORIZON_DETAIL = 0.1
 HORIZON_GIVE_UP = 0.9
 HORIZON_BUDGET = 4096  # node visits a face and side (past them: closed)
 HORIZON_MAX_TRIANGLES = 8192
+# words of a face's record (uint32): its unit normal A (float32), the flags, 8 sector bytes per
+# side, then the sectors' frame t and b (float32, ``escape_frames``) and 2 unused
+ESCAPE_WORDS = 16
 
 _HORIZON_FACE = r"""
 #if !defined(__CUDA_ARCH__)
@@ -1412,8 +1416,8 @@ const float* N = (const float*)nodes;
 const int* C = (const int*)kids;
 const float* TR = (const float*)tris;
 const int face = wp::mesh_get(mid).bvh.primitive_indices[k];
-unsigned int* out = (unsigned int*)outp + 8 * face;
-for (int w = 0; w < 8; ++w) out[w] = w < 4 ? 0u : 0xffffffffu;  // every sector closed
+unsigned int* out = (unsigned int*)outp + ESCAPE_WORDS * face;
+for (int w = 0; w < ESCAPE_WORDS; ++w) out[w] = w >= 4 && w < 8 ? 0xffffffffu : 0u;  // every sector closed
 const float* fk = TR + 9 * k;
 double F[3][3];
 for (int j = 0; j < 3; ++j) for (int i = 0; i < 3; ++i) F[j][i] = (double)fk[3 * j + i];
@@ -1673,7 +1677,7 @@ return 0;
 """
 
 
-@wp.func_native(_HORIZON_FACE)
+@wp.func_native(_HORIZON_FACE.replace("ESCAPE_WORDS", str(ESCAPE_WORDS)))
 def _horizon_face(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, k: int,
                   escapes: wp.uint64, tol: float, margin: float, detail: float, giveup: float, budget: int,
                   sides: int, outp: wp.uint64) -> int:
@@ -1705,25 +1709,48 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
     if n > HORIZON_MAX_TRIANGLES or not tree.usable:
         if not known.any():
             return None
-        h = np.zeros((n, 8), dtype=np.uint32)
+        h = np.zeros((n, ESCAPE_WORDS), dtype=np.uint32)
         h[:, :3] = _unit_normals(v, f)[0].astype(np.float32).view(np.uint32)
         h[:, 3] = known
         h[:, 4:6] = np.where((known & 1 != 0)[:, None], 0, 0xFFFFFFFF)
         h[:, 6:8] = np.where((known & 2 != 0)[:, None], 0, 0xFFFFFFFF)
+        h[:, 8:14] = escape_frames(h[:, :3].view(np.float32)).view(np.uint32)
         return h
     sides = 3
     if closed_surface(f, edges):  # the outer side only: the front where the faces wind outwards
         sides = 1 if winds_outwards(v, f) else 2
     dev = tree.mesh.device
-    out = wp.empty(8 * n, dtype=wp.uint32, device=dev)
+    out = wp.empty(ESCAPE_WORDS * n, dtype=wp.uint32, device=dev)
     esc = wp.array(known, dtype=wp.uint8, device=dev)
     tol = float(ESCAPE_TOL * float(np.abs(v).max(initial=0.0)))
     _in_pieces(n, 256, dev, lambda lo, hi: wp.launch(
         horizon_kernel, dim=hi - lo, device=dev,
         inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
                 HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr]))
-    h = out.numpy().reshape(n, 8)
-    return h if np.any(h[:, 3]) else None
+    h = out.numpy().reshape(n, ESCAPE_WORDS)
+    if not np.any(h[:, 3]):
+        return None
+    h[:, 8:14] = escape_frames(h[:, :3].copy().view(np.float32)).view(np.uint32)
+    return h
+
+
+def escape_frames(a: np.ndarray) -> np.ndarray:
+    """The sectors' frame of each face whose unit normal (float32) is a row of ``a`` (F, 3): t, a
+    unit vector across A and the axis of A's least component, then b = A x t, as (F, 6) float32,
+    by the float32 operations ``horizon_escapes`` once made per ray (its sectors the same, bit for
+    bit; a zero normal gives a frame never read)."""
+    a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
+    m = np.abs(a)
+    ax = np.where(m[:, 0] <= m[:, 1], np.where(m[:, 0] <= m[:, 2], 0, 2), np.where(m[:, 1] <= m[:, 2], 1, 2))
+    zero = np.zeros(len(a), np.float32)
+    t = np.where((ax == 0)[:, None], np.stack([zero, a[:, 2], -a[:, 1]], 1),
+                 np.where((ax == 1)[:, None], np.stack([-a[:, 2], zero, a[:, 0]], 1), np.stack([a[:, 1], -a[:, 0], zero], 1)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        il = np.float32(1.0) / np.sqrt(t[:, 0] * t[:, 0] + t[:, 1] * t[:, 1] + t[:, 2] * t[:, 2])
+    t = t * il[:, None]
+    b = np.stack([a[:, 1] * t[:, 2] - a[:, 2] * t[:, 1], a[:, 2] * t[:, 0] - a[:, 0] * t[:, 2],
+                  a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0]], 1)
+    return np.concatenate([t, b], 1).astype(np.float32)
 
 
 # Whether the ray along d (object space, any length) from the face and side ``code`` = 2 face +
@@ -1732,26 +1759,22 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
 _HORIZON_ESCAPES = r"""
 #if !defined(__CUDA_ARCH__)
 if (escape == 0) return 0;
-const unsigned int* w = (const unsigned int*)escape + 8 * (code >> 1);
-float A[3];
-__builtin_memcpy(A, w, 12);
-if (code & 1) { A[0] = -A[0]; A[1] = -A[1]; A[2] = -A[2]; }
+const unsigned int* w = (const unsigned int*)escape + ESCAPE_WORDS * (code >> 1);
+float R[9];  // the face's normal A, then its sectors' frame t and b (``escape_frames``)
+__builtin_memcpy(R, w, 12);
+__builtin_memcpy(R + 3, w + 8, 24);
 const float dx = d[0], dy = d[1], dz = d[2];
-const float dA = dx * A[0] + dy * A[1] + dz * A[2];
+// side 1 leaves against A: A and t negated (b = A x t is the same), and so are d.A and d.t,
+// exactly (each product and each sum negated)
+const float sg = (code & 1) ? -1.0f : 1.0f;
+const float dA = sg * (dx * R[0] + dy * R[1] + dz * R[2]);
 if (!(dA > 0.0f)) return 0;
-const float a0 = fabsf(A[0]), a1 = fabsf(A[1]), a2 = fabsf(A[2]);
-const int ax = a0 <= a1 ? (a0 <= a2 ? 0 : 2) : (a1 <= a2 ? 1 : 2);
-float t0, t1, t2;  // A x (the axis ax)
-if (ax == 0) { t0 = 0.0f; t1 = A[2]; t2 = -A[1]; }
-else if (ax == 1) { t0 = -A[2]; t1 = 0.0f; t2 = A[0]; }
-else { t0 = A[1]; t1 = -A[0]; t2 = 0.0f; }
-const float il = 1.0f / sqrtf(t0 * t0 + t1 * t1 + t2 * t2);
-t0 *= il; t1 *= il; t2 *= il;
-const float b0 = A[1] * t2 - A[2] * t1, b1 = A[2] * t0 - A[0] * t2, b2 = A[0] * t1 - A[1] * t0;
-const float x = dx * t0 + dy * t1 + dz * t2, y = dx * b0 + dy * b1 + dz * b2;
-int s;
-if (y >= 0.0f) s = x > 0.0f ? (y < x ? 0 : 1) : (y > -x ? 2 : 3);
-else s = x < 0.0f ? (-y < -x ? 4 : 5) : (x < -y ? 6 : 7);
+const float x = sg * (dx * R[3] + dy * R[4] + dz * R[5]), y = dx * R[6] + dy * R[7] + dz * R[8];
+// the sector of (x, y), 45 degrees each from t (the lower half as the upper turned half round),
+// without branches: which one is a coin toss to the branch predictor
+const int lower = y < 0.0f;
+const float xs = lower ? -x : x, ys = lower ? -y : y;
+const int s = 4 * lower + (xs > 0.0f ? (ys < xs ? 0 : 1) : (ys > -xs ? 2 : 3));
 const unsigned char q = ((const unsigned char*)(w + 4 + 2 * (code & 1)))[s];
 if (q == 255) return 0;
 const float h = (float)q * (1.0f / 255.0f);
@@ -1762,7 +1785,7 @@ return 0;
 """
 
 
-@wp.func_native(_HORIZON_ESCAPES)
+@wp.func_native(_HORIZON_ESCAPES.replace("ESCAPE_WORDS", str(ESCAPE_WORDS)))
 def horizon_escapes(escape: wp.uint64, code: int, d: wp.vec3) -> int:
     """1 when the ray along d from face and side ``code`` (2 face + side) passes its horizon (see
     above), so it meets no triangle of the mesh."""
@@ -1771,14 +1794,14 @@ def horizon_escapes(escape: wp.uint64, code: int, d: wp.vec3) -> int:
 
 _HORIZON_OPEN = r"""
 #if !defined(__CUDA_ARCH__)
-return escape == 0 ? 0 : (int)(((const unsigned int*)escape)[8 * face + 3] >> side & 1u);
+return escape == 0 ? 0 : (int)(((const unsigned int*)escape)[ESCAPE_WORDS * face + 3] >> side & 1u);
 #else
 return 0;
 #endif
 """
 
 
-@wp.func_native(_HORIZON_OPEN)
+@wp.func_native(_HORIZON_OPEN.replace("ESCAPE_WORDS", str(ESCAPE_WORDS)))
 def horizon_open(escape: wp.uint64, face: int, side: int) -> int:
     """1 when side ``side`` (0: along the normal) of face ``face`` has an open sector (see above)."""
     ...

@@ -479,7 +479,8 @@ class Renderer:
             # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
             spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
             return RenderResult(image=image, spp=spp_done, wall_time=wall, rays=film.rays(),
-                                stack_overflows=film.overflows(), features=self.features,
+                                stack_overflows=film.overflows() if self.features.secondary else 0,  # (no stack: none)
+                                features=self.features,
                                 device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
         finally:
             if held:
