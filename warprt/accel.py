@@ -1457,8 +1457,9 @@ for (int side = 0; side < 2; ++side) {
     }
     const double sg = side == 0 ? 1.0 : -1.0;
     const double A[3] = {sg * (double)a32[0], sg * (double)a32[1], sg * (double)a32[2]};
-    // the sectors' frame (as ``horizon_escapes`` builds it): t across A and the axis of A's
-    // least component, b = A x t; sector s holds the azimuths [s, s + 1) * 45 degrees from t
+    // the sectors' frame (as ``escape_frames`` makes the test's, in double here): t across A
+    // and the axis of A's least component, b = A x t; sector s holds the azimuths
+    // [s, s + 1) * 45 degrees from t
     const int ax = fabs(A[0]) <= fabs(A[1]) ? (fabs(A[0]) <= fabs(A[2]) ? 0 : 2) : (fabs(A[1]) <= fabs(A[2]) ? 1 : 2);
     double ev[3] = {0.0, 0.0, 0.0}; ev[ax] = 1.0;
     double t[3], b[3]; cross(A, ev, t);
@@ -1745,11 +1746,11 @@ def escape_frames(a: np.ndarray) -> np.ndarray:
     zero = np.zeros(len(a), np.float32)
     t = np.where((ax == 0)[:, None], np.stack([zero, a[:, 2], -a[:, 1]], 1),
                  np.where((ax == 1)[:, None], np.stack([-a[:, 2], zero, a[:, 0]], 1), np.stack([a[:, 1], -a[:, 0], zero], 1)))
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # (a zero normal's frame: NaN, never read)
         il = np.float32(1.0) / np.sqrt(t[:, 0] * t[:, 0] + t[:, 1] * t[:, 1] + t[:, 2] * t[:, 2])
-    t = t * il[:, None]
-    b = np.stack([a[:, 1] * t[:, 2] - a[:, 2] * t[:, 1], a[:, 2] * t[:, 0] - a[:, 0] * t[:, 2],
-                  a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0]], 1)
+        t = t * il[:, None]
+        b = np.stack([a[:, 1] * t[:, 2] - a[:, 2] * t[:, 1], a[:, 2] * t[:, 0] - a[:, 0] * t[:, 2],
+                      a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0]], 1)
     return np.concatenate([t, b], 1).astype(np.float32)
 
 

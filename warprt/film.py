@@ -134,8 +134,8 @@ def packet_samples(r: PacketF, g: PacketF, b: PacketF, ar: PacketF, ag: PacketF,
 
 @build_once
 def _image_kernels():
-    """The film's kernels (both images and the adaptive pilot's deviations), defined together so
-    that the Warp module ``warprt_film`` always holds the same three (whichever is used first)."""
+    """The film's kernels (both images and adaptive sampling's counts), defined together so that
+    the Warp module ``warprt_film`` always holds the same three (whichever is used first)."""
 
     @wp.kernel(module="warprt_film", enable_backward=False)
     def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
@@ -285,13 +285,14 @@ ADAPTIVE_NEAR_WEIGHT = 6.0  # the 4 edge neighbours' weight in the mean variance
 ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
 
 
-# Adaptive sampling's pilot deviations (``adaptive_counts``) in one pass over the film on the CPU:
-# ``_deviations``' numpy operations in the same order on the same float32 values (bit for bit),
-# between the pilot and the main passes while every worker waits (numpy's dozens of passes over
-# the film took about a millisecond). Each pixel's luminance y and its variance (or y², for a
-# pilot of one sample) first, then each pixel's weighted sums over the other colour's 12
-# neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in that order, 0 outside the image).
-_DEVIATIONS = r"""
+# Adaptive sampling's counts (``adaptive_counts``) in one pass over the film on the CPU, between
+# the pilot and the main passes while every worker waits (numpy's dozens of passes over the film
+# took 1-2 ms): ``_counts``' numpy operations in the same order on the same values, so the same
+# counts. Each pixel's luminance y and its variance (or y², for a pilot of one sample), then its
+# weighted sums over the other colour's 12 neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in
+# that order, 0 outside the image) and its deviation (``_deviations``), then each colour's shares
+# in float64 and their rounding (``_round_keeping_sum``: a histogram of the fractional parts).
+_PILOT_COUNTS = r"""
 #if !defined(__CUDA_ARCH__)
 const float* acc = reinterpret_cast<const float*>(accum.data);
 const float* sq = accum_sq.data;
@@ -475,7 +476,7 @@ for (int col = 0; col < 2; ++col) {
 
 
 def _sums_code(a: str) -> str:
-    """``_DEVIATIONS``' straight-line neighbour sums of row pointer ``a``0 (``V`` or ``Y``'s row r)."""
+    """``_PILOT_COUNTS``' straight-line neighbour sums of row pointer ``a``0 (``V`` or ``Y``'s row r)."""
     out = []
     for part, near in (("near", True), ("far", False)):
         out.append(f"            float {part}_{a.lower()} = 0.0f;")
@@ -485,14 +486,14 @@ def _sums_code(a: str) -> str:
     return "\n".join(out)
 
 
-_DEVIATIONS = (_DEVIATIONS.replace("@DR@", ", ".join(str(a) for a, b in ADAPTIVE_NEIGHBOURS))
+_PILOT_COUNTS = (_PILOT_COUNTS.replace("@DR@", ", ".join(str(a) for a, b in ADAPTIVE_NEIGHBOURS))
                .replace("@DC@", ", ".join(str(b) for a, b in ADAPTIVE_NEIGHBOURS))
                .replace("@NEAR@", ", ".join("true" if abs(a) + abs(b) == 1 else "false" for a, b in ADAPTIVE_NEIGHBOURS))
                .replace("@SUMS_V@", _sums_code("V")).replace("@SUMS_Y@", _sums_code("Y"))
                .replace("@BUCKETS@", str(ROUND_BUCKETS)))
 
 
-@wp.func_native(_DEVIATIONS)
+@wp.func_native(_PILOT_COUNTS)
 def pilot_counts(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
                  n0: int, inv_n: float, unbias: float, near_weight: float, spp: int, n_min: int, cap: float,
                  ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
@@ -547,9 +548,9 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
 def _deviations(film: Film, n0: int) -> np.ndarray:
     """Each pixel's deviation for ``adaptive_counts`` from a film holding ``n0`` samples of every
-    pixel, float32, with numpy (on the CPU ``Film.deviations`` computes the same numbers in one
-    pass): the root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS, or with one sample
-    a pixel, the weighted spread of their values about their weighted mean."""
+    pixel, float32, with numpy (on the CPU ``Film.pilot_counts`` computes the same numbers): the
+    root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS, or with one sample a pixel, the
+    weighted spread of their values about their weighted mean."""
     h, w = film.height, film.width
     weights = _adaptive_layout(h, w)[0]
     acc = film.data.accum.numpy()
@@ -565,8 +566,6 @@ def _deviations(film: Film, n0: int) -> np.ndarray:
         return np.sqrt(_neighbour_sum(var, h, w) / weights)
     mean = _neighbour_sum(y, h, w) / weights
     return np.sqrt(np.maximum(_neighbour_sum(y * y, h, w) / weights - mean * mean, 0.0))
-
-
 
 
 def _sum_in_order(x: np.ndarray) -> float:
