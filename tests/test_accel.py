@@ -1273,19 +1273,21 @@ def test_shadow_rays_above_a_faces_escape_horizon_meet_no_triangle_of_its_mesh(n
     n_rays = len(face)
     code = 2 * face + (s < 0)
     hz = wp.array(h.reshape(-1), dtype=wp.uint32, device="cpu")
+    frames = wp.array(accel.escape_frames(h[:, :3].copy().view(np.float32)).reshape(-1), dtype=wp.float32, device="cpu")
 
     @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
-    def k_hz(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, esc: wp.uint64,
+    def k_hz(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, esc: wp.uint64, fr: wp.uint64,
              code: wp.array(dtype=int), o: wp.array(dtype=wp.vec3), d: wp.array(dtype=wp.vec3),
              t_max: wp.array(dtype=float), out: wp.array(dtype=wp.vec3i)):
         i = wp.tid()
         out[i] = wp.vec3i(accel.mesh_tree_occluded(nodes, kids, tris, root, wp.uint64(0), o[i], d[i], t_max[i]),
-                          accel.horizon_escapes(esc, code[i], d[i]),
+                          accel.horizon_escapes(esc, fr, code[i], d[i]),
                           accel.horizon_open(esc, code[i] // 2, code[i] % 2))
 
     out = wp.zeros(n_rays, dtype=wp.vec3i, device="cpu")
     wp.launch(k_hz, dim=n_rays, device="cpu", inputs=[
-        tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, hz.ptr, wp.array(code.astype(np.int32), dtype=int),
+        tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, hz.ptr, frames.ptr,
+        wp.array(code.astype(np.int32), dtype=int),
         wp.array(o.astype(np.float32), dtype=wp.vec3, device="cpu"),
         wp.array(d.astype(np.float32), dtype=wp.vec3, device="cpu"),
         wp.array(t_max.astype(np.float32), dtype=float, device="cpu"), out])
@@ -1376,6 +1378,7 @@ def test_shadow_rays_skip_the_mesh_whose_escaping_face_they_leave_and_the_image_
     r = warprt.Renderer(scene, device="cpu")
     rows = r.built.data.insts.numpy()
     assert np.count_nonzero(rows["escape"]) == 4
+    assert np.count_nonzero(rows["frames"]) == 4  # (their sectors' frames: horizons found on all four)
     assert np.count_nonzero(rows["cones"]) == 3  # (the bowl is open)
     with_faces, without = _with_and_without(r, "escape", 4)
     assert without.tobytes() == with_faces.tobytes()
@@ -1384,7 +1387,7 @@ def test_shadow_rays_skip_the_mesh_whose_escaping_face_they_leave_and_the_image_
     assert float(without[..., 0].std()) > 0.01  # (a lit, shadowed image)
     r2 = warprt.Renderer(scene, device="cpu")
     r2.set_mesh_points(2, tv * 1.01)
-    assert r2.built.data.insts.numpy()["escape"][1] == 0
+    assert r2.built.data.insts.numpy()["escape"][1] == 0 and r2.built.data.insts.numpy()["frames"][1] == 0
     r2.update(scene)  # the moved asset is reused: still none
     assert r2.built.data.insts.numpy()["escape"][1] == 0
 

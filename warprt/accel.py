@@ -550,6 +550,7 @@ class MeshTree:
         self.n_faces = n_faces
         self.balls: wp.array | None = None  # interior balls (``interior_balls``), set by ``find_balls``
         self.escape: wp.array | None = None  # escape horizons (``escape_horizons``), set by ``find_balls``
+        self.frames: wp.array | None = None  # their sectors' frames (``escape_frames``), where found
         self.cones: wp.array | None = None  # normal cones (``normal_cones``), set by ``find_balls``
         self.wide: wp.array | None = None  # the 4-wide tree (``widen``) of a usable tree
         self.wide_cones: wp.array | None = None  # its normal cones
@@ -565,6 +566,9 @@ class MeshTree:
                                                           device=self.mesh.device)
         h = escape_horizons(self, points, faces, edges)
         self.escape = None if h is None else wp.array(h.reshape(-1), dtype=wp.uint32, device=self.mesh.device)
+        # (the frames where the bounds were found: the escaping faces alone have every sector alike)
+        self.frames = None if h is None or len(faces) > HORIZON_MAX_TRIANGLES else wp.array(
+            escape_frames(h[:, :3].copy().view(np.float32)).reshape(-1), dtype=wp.float32, device=self.mesh.device)
         c = normal_cones(self, points, faces, edges)
         self.cones = None if c is None else wp.array(c.reshape(-1), dtype=wp.float32, device=self.mesh.device)
         self.wide_cones = None if c is None or self.wide is None else wp.array(
@@ -605,6 +609,7 @@ class MeshTree:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
                     wide=self.wide.ptr, balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr,
+                    frames=0 if self.escape is None or self.frames is None else self.frames.ptr,
                     cones=0, wide_cones=0, shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES), bins=0)
 
     def ball_fields(self) -> dict:
@@ -617,8 +622,8 @@ class MeshTree:
         return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4, cones=cones, wide_cones=wide_cones)
 
 
-NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, wide=0, balls=0, n_balls=0, escape=0, cones=0,
-               wide_cones=0, shadow_packets=0, bins=0)
+NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, wide=0, balls=0, n_balls=0, escape=0, frames=0,
+               cones=0, wide_cones=0, shadow_packets=0, bins=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -1390,16 +1395,16 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
 # float32 test's rounding); a side whose every sector reaches HORIZON_GIVE_UP is closed. Closed
 # meshes get their outer side only (the inner one serves a camera inside the solid, where every
 # direction meets the mesh soon). Each face: its unit normal (float32, the axis both the bounds
-# and the test use), a word of flags (bit s: side s has an open sector), 8 bytes per side, and the
-# sectors' frame in float32 (``escape_frames``: made once here rather than by every ray's test).
+# and the test use), a word of flags (bit s: side s has an open sector), and 8 bytes per side;
+# and, where the bounds were found (not for the escaping faces alone, whose 8 sectors are alike),
+# the sectors' frame in an array of its own (``escape_frames``: made once, not by every ray's test).
 HORIZON_MARGIN = 2.0e-3
 HORIZON_DETAIL = 0.1
 HORIZON_GIVE_UP = 0.9
 HORIZON_BUDGET = 4096  # node visits a face and side (past them: closed)
 HORIZON_MAX_TRIANGLES = 8192
-# words of a face's record (uint32): its unit normal A (float32), the flags, 8 sector bytes per
-# side, then the sectors' frame t and b (float32, ``escape_frames``) and 2 unused
-ESCAPE_WORDS = 16
+# words of a face's record (uint32): its unit normal A (float32), the flags, 8 sector bytes per side
+ESCAPE_WORDS = 8
 
 _HORIZON_FACE = r"""
 #if !defined(__CUDA_ARCH__)
@@ -1417,7 +1422,7 @@ const int* C = (const int*)kids;
 const float* TR = (const float*)tris;
 const int face = wp::mesh_get(mid).bvh.primitive_indices[k];
 unsigned int* out = (unsigned int*)outp + ESCAPE_WORDS * face;
-for (int w = 0; w < ESCAPE_WORDS; ++w) out[w] = w >= 4 && w < 8 ? 0xffffffffu : 0u;  // every sector closed
+for (int w = 0; w < ESCAPE_WORDS; ++w) out[w] = w < 4 ? 0u : 0xffffffffu;  // every sector closed
 const float* fk = TR + 9 * k;
 double F[3][3];
 for (int j = 0; j < 3; ++j) for (int i = 0; i < 3; ++i) F[j][i] = (double)fk[3 * j + i];
@@ -1715,7 +1720,6 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
         h[:, 3] = known
         h[:, 4:6] = np.where((known & 1 != 0)[:, None], 0, 0xFFFFFFFF)
         h[:, 6:8] = np.where((known & 2 != 0)[:, None], 0, 0xFFFFFFFF)
-        h[:, 8:14] = escape_frames(h[:, :3].view(np.float32)).view(np.uint32)
         return h
     sides = 3
     if closed_surface(f, edges):  # the outer side only: the front where the faces wind outwards
@@ -1729,17 +1733,14 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
         inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
                 HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr]))
     h = out.numpy().reshape(n, ESCAPE_WORDS)
-    if not np.any(h[:, 3]):
-        return None
-    h[:, 8:14] = escape_frames(h[:, :3].copy().view(np.float32)).view(np.uint32)
-    return h
+    return h if np.any(h[:, 3]) else None
 
 
 def escape_frames(a: np.ndarray) -> np.ndarray:
     """The sectors' frame of each face whose unit normal (float32) is a row of ``a`` (F, 3): t, a
-    unit vector across A and the axis of A's least component, then b = A x t, as (F, 6) float32,
-    by the float32 operations ``horizon_escapes`` once made per ray (its sectors the same, bit for
-    bit; a zero normal gives a frame never read)."""
+    unit vector across A and the axis of A's least component, then b = A x t, as (F, 8) float32
+    (2 unused), by the float32 operations ``horizon_escapes`` once made per ray (its sectors the
+    same, bit for bit; a zero normal gives a frame never read)."""
     a = np.asarray(a, dtype=np.float32).reshape(-1, 3)
     m = np.abs(a)
     ax = np.where(m[:, 0] <= m[:, 1], np.where(m[:, 0] <= m[:, 2], 0, 2), np.where(m[:, 1] <= m[:, 2], 1, 2))
@@ -1751,7 +1752,7 @@ def escape_frames(a: np.ndarray) -> np.ndarray:
         t = t * il[:, None]
         b = np.stack([a[:, 1] * t[:, 2] - a[:, 2] * t[:, 1], a[:, 2] * t[:, 0] - a[:, 0] * t[:, 2],
                       a[:, 0] * t[:, 1] - a[:, 1] * t[:, 0]], 1)
-    return np.concatenate([t, b], 1).astype(np.float32)
+    return np.concatenate([t, b, np.zeros((len(a), 2), np.float32)], 1).astype(np.float32)
 
 
 # Whether the ray along d (object space, any length) from the face and side ``code`` = 2 face +
@@ -1761,21 +1762,25 @@ _HORIZON_ESCAPES = r"""
 #if !defined(__CUDA_ARCH__)
 if (escape == 0) return 0;
 const unsigned int* w = (const unsigned int*)escape + ESCAPE_WORDS * (code >> 1);
-float R[9];  // the face's normal A, then its sectors' frame t and b (``escape_frames``)
-__builtin_memcpy(R, w, 12);
-__builtin_memcpy(R + 3, w + 8, 24);
+float A[3];
+__builtin_memcpy(A, w, 12);
 const float dx = d[0], dy = d[1], dz = d[2];
 // side 1 leaves against A: A and t negated (b = A x t is the same), and so are d.A and d.t,
 // exactly (each product and each sum negated)
 const float sg = (code & 1) ? -1.0f : 1.0f;
-const float dA = sg * (dx * R[0] + dy * R[1] + dz * R[2]);
+const float dA = sg * (dx * A[0] + dy * A[1] + dz * A[2]);
 if (!(dA > 0.0f)) return 0;
-const float x = sg * (dx * R[3] + dy * R[4] + dz * R[5]), y = dx * R[6] + dy * R[7] + dz * R[8];
-// the sector of (x, y), 45 degrees each from t (the lower half as the upper turned half round),
-// without branches: which one is a coin toss to the branch predictor
-const int lower = y < 0.0f;
-const float xs = lower ? -x : x, ys = lower ? -y : y;
-const int s = 4 * lower + (xs > 0.0f ? (ys < xs ? 0 : 1) : (ys > -xs ? 2 : 3));
+int s = 0;  // (without frames, the escaping faces alone: every sector alike)
+if (frames != 0) {
+    float R[6];  // the sectors' frame t, b (``escape_frames``)
+    __builtin_memcpy(R, (const float*)frames + 8 * (code >> 1), 24);
+    const float x = sg * (dx * R[0] + dy * R[1] + dz * R[2]), y = dx * R[3] + dy * R[4] + dz * R[5];
+    // the sector of (x, y), 45 degrees each from t (the lower half as the upper turned half
+    // round), without branches: which one is a coin toss to the branch predictor
+    const int lower = y < 0.0f;
+    const float xs = lower ? -x : x, ys = lower ? -y : y;
+    s = 4 * lower + (xs > 0.0f ? (ys < xs ? 0 : 1) : (ys > -xs ? 2 : 3));
+}
 const unsigned char q = ((const unsigned char*)(w + 4 + 2 * (code & 1)))[s];
 if (q == 255) return 0;
 const float h = (float)q * (1.0f / 255.0f);
@@ -1787,9 +1792,10 @@ return 0;
 
 
 @wp.func_native(_HORIZON_ESCAPES.replace("ESCAPE_WORDS", str(ESCAPE_WORDS)))
-def horizon_escapes(escape: wp.uint64, code: int, d: wp.vec3) -> int:
+def horizon_escapes(escape: wp.uint64, frames: wp.uint64, code: int, d: wp.vec3) -> int:
     """1 when the ray along d from face and side ``code`` (2 face + side) passes its horizon (see
-    above), so it meets no triangle of the mesh."""
+    above), so it meets no triangle of the mesh (``frames``: the faces' ``escape_frames``, 0 for
+    the escaping faces alone)."""
     ...
 
 

@@ -294,12 +294,14 @@ class DeviceScene:
         if tree is not None and (tree.balls is not None or tree.escape is not None or tree.cones is not None):
             tree.balls = None  # its interior balls no longer fit it (kept so for later builds too)
             tree.escape = None  # nor its escape horizons
+            tree.frames = None
             tree.cones = None  # nor its normal cones
             tree.wide_cones = None
             rows = self.data.insts.numpy()
             for i, k in enumerate(self.instance_assets):
                 if k == key:
                     rows["escape"][i] = 0
+                    rows["frames"][i] = 0
             self.data.insts.assign(rows)
             self.refresh_balls()
         if any(isinstance(s, Mesh) and s.smooth for s in self.scene.shapes):

@@ -180,6 +180,7 @@ class InstRec:
     balls: wp.uint64  # the asset's interior balls (accel.interior_balls) while shadow rays may use them
     n_balls: int  # 0: none (CUDA, a mesh that does not qualify, or build.DeviceScene's rules)
     escape: wp.uint64  # the asset's escape horizons (accel.escape_horizons; 0: none)
+    frames: wp.uint64  # their sectors' frames (accel.escape_frames; 0: the escaping faces alone)
     cones: wp.uint64  # the asset's normal cones (accel.normal_cones) while shadow rays may use them
     wide_cones: wp.uint64  # the same in the wide tree's layout (0 with cones 0)
     shadow_packets: int  # 1: a camera packet's shadow rays go through the tree together (accel.SHADOW_PACKET_TRIANGLES)

@@ -1385,7 +1385,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                     if skip[k] == i + 1:
                         if (left >> k) & 1 != 0:
                             d_obj = dir_to_object(instance_pose(scene, i, time[k]), wp.vec3(dx[k], dy[k], dz[k]))
-                            if horizon_escapes(scene.insts[i].escape, face[k], d_obj) != 0:
+                            if horizon_escapes(scene.insts[i].escape, scene.insts[i].frames, face[k], d_obj) != 0:
                                 own = own | (1 << k)
                 inside = box_hits_packet(scene.insts[i].lo, scene.insts[i].hi, left & ~own, ox, oy, oz, dx, dy, dz, 0.0,
                                          t_max)
