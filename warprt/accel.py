@@ -609,7 +609,7 @@ class MeshTree:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
                     wide=self.wide.ptr, balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr,
-                    frames=0 if self.escape is None or self.frames is None else self.frames.ptr,
+                    frames=0 if self.frames is None else self.frames.ptr,
                     cones=0, wide_cones=0, shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES), bins=0)
 
     def ball_fields(self) -> dict:

@@ -20,6 +20,7 @@ from ._warp import build_once
 from .accel import PacketF
 
 NO_LIMIT = (1 << 31) - 1  # FilmData.limit of a pixel without a sample cap
+KEEP_SCRATCH_PIXELS = 1 << 20  # films up to this size keep adaptive sampling's scratch (Film.pilot_counts)
 
 
 @wp.struct
@@ -219,18 +220,23 @@ class Film:
             self.data.limit.assign(self.counts)
 
     def pilot_counts(self, n0: int, spp: int, n_min: int, cap: float) -> np.ndarray:
-        """``adaptive_counts`` of a CPU film, by one single-thread pass of native code (its scratch
-        kept with the film; numpy's dozens of passes took 1-2 ms while every worker waited)."""
-        if self._scratch is None:
+        """``adaptive_counts`` of a CPU film, by one single-thread pass of native code (numpy's
+        dozens of passes took 1-2 ms while every worker waited). Its scratch, 32 bytes a pixel, is
+        kept with a film of up to KEEP_SCRATCH_PIXELS (the first touch of fresh pages is part of
+        what a small render's counts cost), made anew for a larger one."""
+        scratch = self._scratch
+        if scratch is None:
             n = self.width * self.height
-            self._scratch = ([wp.empty(n, dtype=float, device=self.device) for _ in range(3)]
-                             + [wp.empty(n, dtype=wp.float64, device=self.device)]
-                             + [wp.empty(n, dtype=int, device=self.device) for _ in range(3)])
+            scratch = ([wp.empty(n, dtype=float, device=self.device) for _ in range(3)]
+                       + [wp.empty(n, dtype=wp.float64, device=self.device)]
+                       + [wp.empty(n, dtype=int, device=self.device) for _ in range(3)])
+            if n <= KEEP_SCRATCH_PIXELS:
+                self._scratch = scratch
         wp.launch(_image_kernels().counts, dim=1, device=self.device,
                   inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
                           float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
-                          ADAPTIVE_NEAR_WEIGHT, int(spp), int(n_min), float(cap), *self._scratch])
-        return self._scratch[-1].numpy().copy()
+                          ADAPTIVE_NEAR_WEIGHT, int(spp), int(n_min), float(cap), *scratch])
+        return scratch[-1].numpy().copy()
 
     def image(self, spp: int) -> np.ndarray:
         """The mean of the samples, (H, W, 3) float32 on the host (each pixel over its own count
