@@ -27,7 +27,7 @@ import numpy as np
 import warp as wp
 
 BINS = 16  # SAH split candidates per axis and node
-SAH_MIN = 16  # nodes over this many primitives split by SAH, smaller ones at the object median
+SAH_MIN = 4  # nodes over this many primitives split by SAH, smaller ones at the object median
 MEDIAN_FROM_LEVEL = 40  # deeper levels split at the median: depth stays below 40 + log2(n)
 STACK = 72  # traversal stack entries: tree depth + 1 at most (a node pops one entry, pushes two)
 MAX_DEPTH = STACK - 2
