@@ -161,12 +161,13 @@ def _image_kernels():
 
     @wp.kernel(module="warprt_film", enable_backward=False)
     def counts_kernel(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
-                      n0: int, inv_n: float, unbias: float, near_weight: float, spp: int, n_min: int, cap: float,
-                      ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
+                      n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float,
+                      spp: int, n_min: int, cap: float, ys: wp.array(dtype=float), vs: wp.array(dtype=float),
+                      nb: wp.array(dtype=float),
                       shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
                       counts: wp.array(dtype=int)):
-        pilot_counts(accum, accum_sq, width, height, n0, inv_n, unbias, near_weight, spp, n_min, cap, ys, vs, nb,
-                     shares, where, bucket, counts)
+        pilot_counts(accum, accum_sq, width, height, n0, inv_n, unbias, near_weight, keep, contrast4, spp, n_min, cap,
+                     ys, vs, nb, shares, where, bucket, counts)
 
     return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel, counts=counts_kernel)
 
@@ -235,7 +236,7 @@ class Film:
         wp.launch(_image_kernels().counts, dim=1, device=self.device,
                   inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
                           float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
-                          ADAPTIVE_NEAR_WEIGHT, int(spp), int(n_min), float(cap), *scratch])
+                          ADAPTIVE_NEAR_WEIGHT, _KEEP, _CONTRAST4, int(spp), int(n_min), float(cap), *scratch])
         return scratch[-1].numpy().copy()
 
     def image(self, spp: int) -> np.ndarray:
@@ -288,6 +289,17 @@ ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass cost
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
 ADAPTIVE_NEAR_WEIGHT = 6.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
+# with a pilot of 2 samples or more, the share of a pixel's squared deviation taken from the contrast
+# across it (the squared differences of its left and right, and of its upper and lower neighbours'
+# mean luminances, added and over 4: the variance of a pixel that an edge between them halves),
+# the rest from that mean variance. The mean variance alone spreads an edge's noise over the
+# pixels on either side of it, which took the samples the edge's own pixels needed: relMSE at 4 /
+# 8 / 16 spp against a 1 with the variance alone, 0.60 / 0.83 / 0.92 on the peer scene (a)'s edges,
+# 0.79 / 0.90 / 0.93 on (e)'s penumbrae, 0.90 / 0.96 / 0.96 through (f)'s thin lens, 0.97 / 1.01 /
+# 1.01 on (d)'s mesh at a share of 0.1 (docs/benchmarks.md, levers)
+ADAPTIVE_CONTRAST = 0.125
+_KEEP = 1.0 - ADAPTIVE_CONTRAST  # (both exact in float32, as the native pass takes them)
+_CONTRAST4 = ADAPTIVE_CONTRAST / 4.0
 ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
 
 
@@ -296,7 +308,8 @@ ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket a
 # took 1-2 ms): ``_counts``' numpy operations in the same order on the same values, so the same
 # counts. Each pixel's luminance y and its variance (or y², for a pilot of one sample), then its
 # weighted sums over the other colour's 12 neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in
-# that order, 0 outside the image) and its deviation (``_deviations``), then each colour's shares
+# that order, 0 outside the image), the contrast across it and its deviation (``_deviations``,
+# ``_contrast``; ``keep`` = 1 - ADAPTIVE_CONTRAST, ``contrast4`` = ADAPTIVE_CONTRAST / 4), then each colour's shares
 # in float64 and their rounding (``_round_keeping_sum``: a histogram of the fractional parts).
 _PILOT_COUNTS = r"""
 #if !defined(__CUDA_ARCH__)
@@ -327,11 +340,22 @@ if (n0 >= 2) {
 }
 // a pixel's deviation from its neighbours' weighted sums: near and far each added up in
 // ADAPTIVE_NEIGHBOURS' order from 0, a neighbour outside the image adding 0
-auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt) -> float {
+// the contrast across pixel (r, c) (``_contrast``): 0 along an axis where a neighbour is missing
+auto contrast = [&](int r, int c) -> float {
+    float dh = 0.0f, dv = 0.0f;
+    if (c >= 1 && c + 1 < width) dh = Y[r * width + c + 1] - Y[r * width + c - 1];
+    if (r >= 1 && r + 1 < height) dv = Y[(r + 1) * width + c] - Y[(r - 1) * width + c];
+    float t = dh * dh;
+    const float t2 = dv * dv;
+    t = t + t2;
+    return t * contrast4;
+};
+auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt, float con) -> float {
     float sv = near_weight * near_v;
     sv = sv + far_v;
     sv = sv / wt;
-    float d = sv;
+    float d = sv * keep;
+    d = d + con;
     if (n0 < 2) {
         float sy = near_weight * near_y;
         sy = sy + far_y;
@@ -363,7 +387,7 @@ auto edge_pixel = [&](int r, int c) {
     float wt = near_weight * near_w;
     wt = wt + far_w;
     wt = wt < 1.0f ? 1.0f : wt;
-    out[r * width + c] = finish(near_v, far_v, near_y, far_y, wt);
+    out[r * width + c] = finish(near_v, far_v, near_y, far_y, wt, n0 >= 2 ? contrast(r, c) : 0.0f);
 };
 // inside, every neighbour in the image: straight-line sums over rows r - 2 ... r + 2
 float wt_in = near_weight * 4.0f;
@@ -384,13 +408,20 @@ for (int r = 0; r < height; ++r) {
             float sv = near_weight * near_v;
             sv = sv + far_v;
             sv = sv / wt_in;
-            o[c] = sqrtf(sv);
+            const float dh = y0[c + 1] - y0[c - 1], dv = y0[width + c] - y0[c - width];
+            float t = dh * dh;
+            const float t2 = dv * dv;
+            t = t + t2;
+            t = t * contrast4;
+            float d = sv * keep;
+            d = d + t;
+            o[c] = sqrtf(d);
         }
     } else {
         for (int c = 2; c < width - 2; ++c) {
 @SUMS_V@
 @SUMS_Y@
-            o[c] = finish(near_v, far_v, near_y, far_y, wt_in);
+            o[c] = finish(near_v, far_v, near_y, far_y, wt_in, 0.0f);
         }
     }
     edge_pixel(r, width - 2);
@@ -501,7 +532,8 @@ _PILOT_COUNTS = (_PILOT_COUNTS.replace("@DR@", ", ".join(str(a) for a, b in ADAP
 
 @wp.func_native(_PILOT_COUNTS)
 def pilot_counts(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
-                 n0: int, inv_n: float, unbias: float, near_weight: float, spp: int, n_min: int, cap: float,
+                 n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float, spp: int,
+                 n_min: int, cap: float,
                  ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
                  shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
                  counts: wp.array(dtype=int)):
@@ -518,8 +550,10 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     coloured as a checkerboard, and a pixel's deviation (of luminance) is estimated from the
     ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5 window), the 4
     edge neighbours weighing ADAPTIVE_NEAR_WEIGHT and the 8 farther ones 1: the root of their
-    weighted mean variance, or with a pilot of one sample (2 spp), the weighted spread of their
-    values about their weighted mean (noise and image detail alike: both call for samples). So
+    weighted mean variance, ADAPTIVE_CONTRAST of its square taken instead from the contrast across
+    the pixel (its left and right, and its upper and lower neighbours' mean luminances: an edge
+    between them runs through it), or with a pilot of one sample (2 spp), the weighted spread of
+    their values about their weighted mean (noise and image detail alike: both call for samples). So
     the count is independent of the pixel's own samples, and the mean of all of them, pilot
     included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also see an edge or
     a penumbra that a pixel's few samples may miss; the weights keep a thin edge's samples on the
@@ -555,8 +589,9 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 def _deviations(film: Film, n0: int) -> np.ndarray:
     """Each pixel's deviation for ``adaptive_counts`` from a film holding ``n0`` samples of every
     pixel, float32, with numpy (on the CPU ``Film.pilot_counts`` computes the same numbers): the
-    root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS, or with one sample a pixel, the
-    weighted spread of their values about their weighted mean."""
+    root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS with the contrast across it
+    (``_contrast``, ADAPTIVE_CONTRAST of the square), or with one sample a pixel, the weighted
+    spread of their values about their weighted mean."""
     h, w = film.height, film.width
     weights = _adaptive_layout(h, w)[0]
     acc = film.data.accum.numpy()
@@ -569,9 +604,26 @@ def _deviations(film: Film, n0: int) -> np.ndarray:
         var -= y * y
         np.maximum(var, np.float32(0.0), out=var)
         var *= np.float32(n0 / max(n0 - 1, 1))
-        return np.sqrt(_neighbour_sum(var, h, w) / weights)
+        d = _neighbour_sum(var, h, w) / weights
+        d *= np.float32(_KEEP)
+        d += _contrast(y, h, w)
+        return np.sqrt(d)
     mean = _neighbour_sum(y, h, w) / weights
     return np.sqrt(np.maximum(_neighbour_sum(y * y, h, w) / weights - mean * mean, 0.0))
+
+
+def _contrast(y: np.ndarray, h: int, w: int) -> np.ndarray:
+    """ADAPTIVE_CONTRAST / 4 × ((right − left)² + (below − above)²) of each pixel's neighbours'
+    mean luminances y (float32, flat), 0 along an axis where the pixel has a neighbour missing."""
+    Y = y.reshape(h, w)
+    dh = np.zeros((h, w), dtype=np.float32)
+    dv = np.zeros((h, w), dtype=np.float32)
+    dh[:, 1:-1] = Y[:, 2:] - Y[:, :-2]
+    dv[1:-1, :] = Y[2:, :] - Y[:-2, :]
+    t = dh * dh
+    t += dv * dv
+    t *= np.float32(_CONTRAST4)
+    return t.reshape(-1)
 
 
 def _sum_in_order(x: np.ndarray) -> float:
