@@ -490,13 +490,17 @@ def test_adaptive_counts_by_native_code_match_numpys():
 @pytest.mark.parametrize("edge_at", [8, 1, 15], ids=["inside", "next to the left border", "next to the right"])
 def test_adaptive_counts_follow_a_noise_free_edge_to_its_own_pixels(edge_at):
     """A pilot with no noise at all (every sample of a pixel alike) and one sharp vertical edge,
-    dark left of column ``edge_at`` and bright from it on: the mean variance is 0 everywhere, so
-    only the contrast across a pixel (ADAPTIVE_CONTRAST of the squared deviation) can tell where
-    samples are needed: the two columns whose left and right neighbours lie on either side of the
-    edge. In closed form, each colour's share of the budget spp × M (M pixels a colour) goes to its
-    K pixels in those columns, every one of which gets n0 + (spp − n0) · M / K (at most
-    ADAPTIVE_MAX_FACTOR × spp), and every other pixel its pilot; both ways (native and numpy)."""
-    from warprt.film import ADAPTIVE_MAX_FACTOR, Film, _counts, adaptive_counts
+    dark (0.1) left of column ``edge_at`` and bright (0.9) from it on: the mean variance is 0
+    everywhere, so only the contrast across a pixel (ADAPTIVE_CONTRAST / 4 of the squared
+    difference of its left and right neighbours, Δ = 0.8) and the ridge (ADAPTIVE_RIDGE / 16 of
+    (left + right − above − below)², also Δ² there: its own column's pixels above and below are
+    on its side) can tell where samples are needed: the two columns whose left and right
+    neighbours lie on either side of the edge, the ridge only in rows with both neighbours. In
+    closed form each colour's share of the budget spp × M (M pixels a colour) goes to those
+    pixels in proportion to Δ·sqrt(contrast + ridge) or Δ·sqrt(contrast) (top and bottom rows),
+    at most ADAPTIVE_MAX_FACTOR × spp, then rounded keeping the sum; every other pixel keeps its
+    pilot; both ways (native and numpy)."""
+    from warprt.film import ADAPTIVE_CONTRAST, ADAPTIVE_MAX_FACTOR, ADAPTIVE_RIDGE, Film, _counts, adaptive_counts
 
     w, h, n0, spp = 16, 8, 4, 8
     y = np.where(np.arange(w) >= edge_at, 0.9, 0.1)[None, :].repeat(h, 0).reshape(-1).astype(np.float32)
@@ -504,22 +508,57 @@ def test_adaptive_counts_follow_a_noise_free_edge_to_its_own_pixels(edge_at):
     f.data.accum.assign(np.repeat((y * n0)[:, None], 3, axis=1).astype(np.float32))  # grey: luminance y
     f.data.accum_sq.assign((y * y * n0).astype(np.float32))  # (no variance)
     cols = np.arange(w)[None, :].repeat(h, 0).reshape(-1)
+    rows = np.arange(h)[:, None].repeat(w, 1).reshape(-1)
     edge = ((cols == edge_at - 1) | (cols == edge_at)) & (cols >= 1) & (cols <= w - 2)
-    colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
-    want = np.full(w * h, n0, dtype=np.int64)
-    for c in (0, 1):
-        mine = colour == c
-        m, k = int(mine.sum()), int((mine & edge).sum())
-        want[mine & edge] = min(n0 + (spp - n0) * m // k, ADAPTIVE_MAX_FACTOR * spp)
     if edge_at == 1:  # (column 0 has no left neighbour: only column 1 sees the edge)
         assert edge.sum() == h
+    dev = np.where(edge, 0.8 * np.sqrt(ADAPTIVE_CONTRAST / 4 + np.where((rows >= 1) & (rows <= h - 2),
+                                                                       ADAPTIVE_RIDGE / 16, 0.0)), 0.0)
+    colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
+    share = np.full(w * h, float(n0))
+    for c in (0, 1):
+        mine = colour == c
+        share[mine] = np.minimum(n0 + (spp - n0) * mine.sum() * dev[mine] / dev[mine].sum(), ADAPTIVE_MAX_FACTOR * spp)
     got = adaptive_counts(f, n0, spp)
-    if want.sum() == spp * w * h:  # (no pixel at the cap: the budget spent exactly)
-        np.testing.assert_array_equal(got, want)
-    else:
-        np.testing.assert_array_equal(got[~edge], n0)
-        assert np.all(got[edge] == ADAPTIVE_MAX_FACTOR * spp)
+    np.testing.assert_array_equal(got[~edge], n0)
+    assert np.all(np.abs(got - share) < 1.0), (got[edge], share[edge])
+    assert got.sum() == round(share.sum())
+    if edge_at == 8:  # (no pixel at the cap: the budget spent exactly)
+        assert got.sum() == spp * w * h and got[edge].min() > 2 * spp
     np.testing.assert_array_equal(_counts(f, n0, spp, n0), got)
+
+
+def test_adaptive_counts_find_a_noise_free_thin_line():
+    """A one-pixel bright line (0.9) across a dark pilot (0.1), no noise: its own pixels have
+    bright left and right neighbours and dark ones above and below, so no contrast across them but
+    the ridge, ADAPTIVE_RIDGE / 16 × (2 × 0.8)²; the rows next to it see the contrast (0.8² ×
+    ADAPTIVE_CONTRAST / 4) and a quarter of that ridge. The line's row gets the counts those
+    deviations give in closed form (in proportion to their roots), more than its neighbours' rows
+    (without the ridge it would keep its pilot), and every other row its pilot."""
+    from warprt.film import ADAPTIVE_CONTRAST, ADAPTIVE_RIDGE, Film, adaptive_counts
+
+    w, h, n0, spp, line = 12, 9, 4, 8, 4
+    rows = np.arange(h)[:, None].repeat(w, 1).reshape(-1)
+    cols = np.arange(w)[None, :].repeat(h, 0).reshape(-1)
+    y = np.where(rows == line, 0.9, 0.1).astype(np.float32)
+    f = Film(w, h, "cpu")
+    f.data.accum.assign(np.repeat((y * n0)[:, None], 3, axis=1).astype(np.float32))
+    f.data.accum_sq.assign((y * y * n0).astype(np.float32))
+    inner = (cols >= 1) & (cols <= w - 2)  # (the ridge needs left and right neighbours)
+    d_line = np.where(inner, 2 * 0.8 * np.sqrt(ADAPTIVE_RIDGE / 16), 0.0)
+    d_next = 0.8 * np.sqrt(ADAPTIVE_CONTRAST / 4 + np.where(inner, ADAPTIVE_RIDGE / 16, 0.0))  # (0.8², not (2 × 0.8)²)
+    dev = np.where(rows == line, d_line, np.where(np.abs(rows - line) == 1, d_next, 0.0))
+    colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
+    share = np.full(w * h, float(n0))
+    for c in (0, 1):
+        mine = colour == c
+        share[mine] = n0 + (spp - n0) * mine.sum() * dev[mine] / dev[mine].sum()
+    got = adaptive_counts(f, n0, spp)
+    assert np.all(np.abs(got - share) < 1.0), (got.reshape(h, w), share.reshape(h, w))
+    assert got.sum() == spp * w * h
+    on, next_to = got[(rows == line) & inner], got[(np.abs(rows - line) == 1) & inner]
+    assert on.min() > next_to.max()
+    np.testing.assert_array_equal(got[np.abs(rows - line) > 1], n0)
 
 
 @pytest.mark.parametrize("n0, spp", [(4, 16), (1, 2)], ids=["pilot of 4", "pilot of 1"])

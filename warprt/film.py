@@ -162,12 +162,12 @@ def _image_kernels():
     @wp.kernel(module="warprt_film", enable_backward=False)
     def counts_kernel(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
                       n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float,
-                      spp: int, n_min: int, cap: float, ys: wp.array(dtype=float), vs: wp.array(dtype=float),
-                      nb: wp.array(dtype=float),
+                      ridge16: float, spp: int, n_min: int, cap: float, ys: wp.array(dtype=float),
+                      vs: wp.array(dtype=float), nb: wp.array(dtype=float),
                       shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
                       counts: wp.array(dtype=int)):
-        pilot_counts(accum, accum_sq, width, height, n0, inv_n, unbias, near_weight, keep, contrast4, spp, n_min, cap,
-                     ys, vs, nb, shares, where, bucket, counts)
+        pilot_counts(accum, accum_sq, width, height, n0, inv_n, unbias, near_weight, keep, contrast4, ridge16, spp,
+                     n_min, cap, ys, vs, nb, shares, where, bucket, counts)
 
     return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel, counts=counts_kernel)
 
@@ -236,7 +236,8 @@ class Film:
         wp.launch(_image_kernels().counts, dim=1, device=self.device,
                   inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
                           float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
-                          ADAPTIVE_NEAR_WEIGHT, _KEEP, _CONTRAST4, int(spp), int(n_min), float(cap), *scratch])
+                          ADAPTIVE_NEAR_WEIGHT, _KEEP, _CONTRAST4, _RIDGE16, int(spp), int(n_min), float(cap),
+                          *scratch])
         return scratch[-1].numpy().copy()
 
     def image(self, spp: int) -> np.ndarray:
@@ -288,7 +289,7 @@ ADAPTIVE_MIN_SHARE = 2  # adaptive sampling gives every pixel at least spp / 2 s
 ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass costs every pixel a little)
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
-ADAPTIVE_NEAR_WEIGHT = 6.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
+ADAPTIVE_NEAR_WEIGHT = 12.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
 # with a pilot of 2 samples or more, the share of a pixel's squared deviation taken from the contrast
 # across it (the squared differences of its left and right, and of its upper and lower neighbours'
 # mean luminances, added and over 4: the variance of a pixel that an edge between them halves),
@@ -298,8 +299,14 @@ ADAPTIVE_NEAR_WEIGHT = 6.0  # the 4 edge neighbours' weight in the mean variance
 # 0.79 / 0.90 / 0.93 on (e)'s penumbrae, 0.90 / 0.96 / 0.96 through (f)'s thin lens, 0.97 / 1.01 /
 # 1.01 on (d)'s mesh at a share of 0.1 (docs/benchmarks.md, levers)
 ADAPTIVE_CONTRAST = 0.125
-_KEEP = 1.0 - ADAPTIVE_CONTRAST  # (both exact in float32, as the native pass takes them)
+# and a thin line's: the square of the left and right neighbours' sum less the upper and lower
+# ones' over 16 (the contrast of a one-pixel line between them, over 4), at this share: on (a)'s
+# far bars, with the near weight of 12 (was 6), relMSE 0.85 / 0.92 / 0.94 at 4 / 8 / 16 spp,
+# the other peer scenes within 2% (docs/benchmarks.md, levers)
+ADAPTIVE_RIDGE = 0.25
+_KEEP = 1.0 - ADAPTIVE_CONTRAST  # (these exact in float32, as the native pass takes them)
 _CONTRAST4 = ADAPTIVE_CONTRAST / 4.0
+_RIDGE16 = ADAPTIVE_RIDGE / 16.0
 ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
 
 
@@ -309,7 +316,8 @@ ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket a
 # counts. Each pixel's luminance y and its variance (or y², for a pilot of one sample), then its
 # weighted sums over the other colour's 12 neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in
 # that order, 0 outside the image), the contrast across it and its deviation (``_deviations``,
-# ``_contrast``; ``keep`` = 1 - ADAPTIVE_CONTRAST, ``contrast4`` = ADAPTIVE_CONTRAST / 4), then each colour's shares
+# ``_contrast``; ``keep`` = 1 - ADAPTIVE_CONTRAST, ``contrast4`` = ADAPTIVE_CONTRAST / 4, ``ridge16`` =
+# ADAPTIVE_RIDGE / 16), then each colour's shares
 # in float64 and their rounding (``_round_keeping_sum``: a histogram of the fractional parts).
 _PILOT_COUNTS = r"""
 #if !defined(__CUDA_ARCH__)
@@ -342,13 +350,22 @@ if (n0 >= 2) {
 // ADAPTIVE_NEIGHBOURS' order from 0, a neighbour outside the image adding 0
 // the contrast across pixel (r, c) (``_contrast``): 0 along an axis where a neighbour is missing
 auto contrast = [&](int r, int c) -> float {
-    float dh = 0.0f, dv = 0.0f;
-    if (c >= 1 && c + 1 < width) dh = Y[r * width + c + 1] - Y[r * width + c - 1];
-    if (r >= 1 && r + 1 < height) dv = Y[(r + 1) * width + c] - Y[(r - 1) * width + c];
+    float dh = 0.0f, dv = 0.0f, rg = 0.0f;
+    const bool across = c >= 1 && c + 1 < width, down = r >= 1 && r + 1 < height;
+    if (across) dh = Y[r * width + c + 1] - Y[r * width + c - 1];
+    if (down) dv = Y[(r + 1) * width + c] - Y[(r - 1) * width + c];
+    if (across && down) {
+        rg = Y[r * width + c - 1] + Y[r * width + c + 1];
+        rg = rg - Y[(r - 1) * width + c];
+        rg = rg - Y[(r + 1) * width + c];
+    }
     float t = dh * dh;
     const float t2 = dv * dv;
     t = t + t2;
-    return t * contrast4;
+    t = t * contrast4;
+    float q = rg * rg;
+    q = q * ridge16;
+    return t + q;
 };
 auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt, float con) -> float {
     float sv = near_weight * near_v;
@@ -409,10 +426,16 @@ for (int r = 0; r < height; ++r) {
             sv = sv + far_v;
             sv = sv / wt_in;
             const float dh = y0[c + 1] - y0[c - 1], dv = y0[width + c] - y0[c - width];
+            float rg = y0[c - 1] + y0[c + 1];
+            rg = rg - y0[c - width];
+            rg = rg - y0[width + c];
             float t = dh * dh;
             const float t2 = dv * dv;
             t = t + t2;
             t = t * contrast4;
+            float q = rg * rg;
+            q = q * ridge16;
+            t = t + q;
             float d = sv * keep;
             d = d + t;
             o[c] = sqrtf(d);
@@ -532,8 +555,8 @@ _PILOT_COUNTS = (_PILOT_COUNTS.replace("@DR@", ", ".join(str(a) for a, b in ADAP
 
 @wp.func_native(_PILOT_COUNTS)
 def pilot_counts(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
-                 n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float, spp: int,
-                 n_min: int, cap: float,
+                 n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float,
+                 ridge16: float, spp: int, n_min: int, cap: float,
                  ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
                  shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
                  counts: wp.array(dtype=int)):
@@ -552,8 +575,10 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     edge neighbours weighing ADAPTIVE_NEAR_WEIGHT and the 8 farther ones 1: the root of their
     weighted mean variance, ADAPTIVE_CONTRAST of its square taken instead from the contrast across
     the pixel (its left and right, and its upper and lower neighbours' mean luminances: an edge
-    between them runs through it), or with a pilot of one sample (2 spp), the weighted spread of
-    their values about their weighted mean (noise and image detail alike: both call for samples). So
+    between them runs through it), and ADAPTIVE_RIDGE of a thin line's contrast added (left and
+    right against above and below: a line between them runs along it), or with a pilot of one
+    sample (2 spp), the weighted spread of their values about their weighted mean (noise and image
+    detail alike: both call for samples). So
     the count is independent of the pixel's own samples, and the mean of all of them, pilot
     included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also see an edge or
     a penumbra that a pixel's few samples may miss; the weights keep a thin edge's samples on the
@@ -589,9 +614,9 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 def _deviations(film: Film, n0: int) -> np.ndarray:
     """Each pixel's deviation for ``adaptive_counts`` from a film holding ``n0`` samples of every
     pixel, float32, with numpy (on the CPU ``Film.pilot_counts`` computes the same numbers): the
-    root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS with the contrast across it
-    (``_contrast``, ADAPTIVE_CONTRAST of the square), or with one sample a pixel, the weighted
-    spread of their values about their weighted mean."""
+    root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS with the contrast and the ridge
+    across it (``_contrast``), or with one sample a pixel, the weighted spread of their values
+    about their weighted mean."""
     h, w = film.height, film.width
     weights = _adaptive_layout(h, w)[0]
     acc = film.data.accum.numpy()
@@ -613,16 +638,25 @@ def _deviations(film: Film, n0: int) -> np.ndarray:
 
 
 def _contrast(y: np.ndarray, h: int, w: int) -> np.ndarray:
-    """ADAPTIVE_CONTRAST / 4 × ((right − left)² + (below − above)²) of each pixel's neighbours'
-    mean luminances y (float32, flat), 0 along an axis where the pixel has a neighbour missing."""
+    """ADAPTIVE_CONTRAST / 4 × ((right − left)² + (below − above)²) + ADAPTIVE_RIDGE / 16 ×
+    (left + right − above − below)² of each pixel's neighbours' mean luminances y (float32, flat):
+    an axis's difference 0 where the pixel has a neighbour missing on it, the ridge where it has
+    any missing."""
     Y = y.reshape(h, w)
     dh = np.zeros((h, w), dtype=np.float32)
     dv = np.zeros((h, w), dtype=np.float32)
+    rg = np.zeros((h, w), dtype=np.float32)
     dh[:, 1:-1] = Y[:, 2:] - Y[:, :-2]
     dv[1:-1, :] = Y[2:, :] - Y[:-2, :]
+    rg[1:-1, 1:-1] = Y[1:-1, :-2] + Y[1:-1, 2:]
+    rg[1:-1, 1:-1] -= Y[:-2, 1:-1]
+    rg[1:-1, 1:-1] -= Y[2:, 1:-1]
     t = dh * dh
     t += dv * dv
     t *= np.float32(_CONTRAST4)
+    q = rg * rg
+    q *= np.float32(_RIDGE16)
+    t += q
     return t.reshape(-1)
 
 
