@@ -346,9 +346,19 @@ if (n0 >= 2) {
 } else {
     for (int i = 0; i < n; ++i) V[i] = Y[i] * Y[i];
 }
-// a pixel's deviation from its neighbours' weighted sums: near and far each added up in
-// ADAPTIVE_NEIGHBOURS' order from 0, a neighbour outside the image adding 0
-// the contrast across pixel (r, c) (``_contrast``): 0 along an axis where a neighbour is missing
+// the contrast and the ridge across a pixel (``_contrast``) from its neighbours' differences
+// (right - left, below - above) and their ridge (left + right - above - below)
+auto edge_terms = [&](float dh, float dv, float rg) -> float {
+    float t = dh * dh;
+    const float t2 = dv * dv;
+    t = t + t2;
+    t = t * contrast4;
+    float q = rg * rg;
+    q = q * ridge16;
+    return t + q;
+};
+// ... at pixel (r, c) near the image's edges: an axis's difference 0 where a neighbour is missing
+// on it, the ridge where any is
 auto contrast = [&](int r, int c) -> float {
     float dh = 0.0f, dv = 0.0f, rg = 0.0f;
     const bool across = c >= 1 && c + 1 < width, down = r >= 1 && r + 1 < height;
@@ -359,14 +369,10 @@ auto contrast = [&](int r, int c) -> float {
         rg = rg - Y[(r - 1) * width + c];
         rg = rg - Y[(r + 1) * width + c];
     }
-    float t = dh * dh;
-    const float t2 = dv * dv;
-    t = t + t2;
-    t = t * contrast4;
-    float q = rg * rg;
-    q = q * ridge16;
-    return t + q;
+    return edge_terms(dh, dv, rg);
 };
+// a pixel's deviation from its neighbours' weighted sums: near and far each added up in
+// ADAPTIVE_NEIGHBOURS' order from 0, a neighbour outside the image adding 0
 auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt, float con) -> float {
     float sv = near_weight * near_v;
     sv = sv + far_v;
@@ -429,13 +435,7 @@ for (int r = 0; r < height; ++r) {
             float rg = y0[c - 1] + y0[c + 1];
             rg = rg - y0[c - width];
             rg = rg - y0[width + c];
-            float t = dh * dh;
-            const float t2 = dv * dv;
-            t = t + t2;
-            t = t * contrast4;
-            float q = rg * rg;
-            q = q * ridge16;
-            t = t + q;
+            const float t = edge_terms(dh, dv, rg);
             float d = sv * keep;
             d = d + t;
             o[c] = sqrtf(d);
