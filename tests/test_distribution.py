@@ -561,6 +561,37 @@ def test_adaptive_counts_find_a_noise_free_thin_line():
     np.testing.assert_array_equal(got[np.abs(rows - line) > 1], n0)
 
 
+def test_adaptive_deviations_one_sample_pilot_weights_and_larger_pilots():
+    """A 5 × 5 film's centre pixel, its 4 edge neighbours alike (a) and its 8 farther neighbours of
+    the other colour alike (b): with a one-sample pilot its deviation is the weighted spread of
+    their values, the near ones weighing ADAPTIVE_NEAR_WEIGHT_1 (6); with a pilot of 4, whose
+    near and far neighbours have variances va and vb (and the same means, so neither contrast nor
+    ridge), the root of (1 - ADAPTIVE_CONTRAST) of their weighted mean variance, the near ones
+    weighing ADAPTIVE_NEAR_WEIGHT (12). In closed form, to float32's rounding."""
+    from warprt.film import ADAPTIVE_CONTRAST, ADAPTIVE_NEIGHBOURS, Film, _deviations
+
+    near = [(r, c) for r, c in ((1, 2), (3, 2), (2, 1), (2, 3))]
+    far = [(2 + a, 2 + b) for a, b in ADAPTIVE_NEIGHBOURS if abs(a) + abs(b) != 1]
+    for n0, (a, b), (va, vb) in ((1, (0.7, 0.2), (0.0, 0.0)), (4, (0.5, 0.5), (0.09, 0.01))):
+        y = np.full((5, 5), 0.5, np.float32)
+        v = np.zeros((5, 5), np.float32)
+        for r, c in near:
+            y[r, c], v[r, c] = a, va
+        for r, c in far:
+            y[r, c], v[r, c] = b, vb
+        f = Film(5, 5, "cpu")
+        f.data.accum.assign(np.repeat((y.reshape(-1) * n0)[:, None], 3, axis=1).astype(np.float32))
+        sq = (v * (n0 - 1) / n0 + y * y) * n0 if n0 > 1 else y * y
+        f.data.accum_sq.assign(sq.reshape(-1).astype(np.float32))
+        got = float(_deviations(f, n0)[12])
+        if n0 == 1:
+            m = (6.0 * 4 * a + 8 * b) / 32.0
+            want = np.sqrt((6.0 * 4 * a * a + 8 * b * b) / 32.0 - m * m)
+        else:
+            want = np.sqrt((1 - ADAPTIVE_CONTRAST) * (12.0 * 4 * va + 8 * vb) / 56.0)
+        assert got == pytest.approx(want, rel=1e-5), (n0, got, want)
+
+
 @pytest.mark.parametrize("n0, spp", [(4, 16), (1, 2)], ids=["pilot of 4", "pilot of 1"])
 def test_adaptive_counts_never_read_the_pixels_own_samples(n0, spp):
     """A pixel's count, and those of every pixel of its checkerboard colour, must not change when

@@ -236,7 +236,7 @@ class Film:
         wp.launch(_image_kernels().counts, dim=1, device=self.device,
                   inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
                           float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
-                          ADAPTIVE_NEAR_WEIGHT, _KEEP, _CONTRAST4, _RIDGE16, int(spp), int(n_min), float(cap),
+                          near_weight(n0), _KEEP, _CONTRAST4, _RIDGE16, int(spp), int(n_min), float(cap),
                           *scratch])
         return scratch[-1].numpy().copy()
 
@@ -290,6 +290,7 @@ ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass cost
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
 ADAPTIVE_NEAR_WEIGHT = 12.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
+ADAPTIVE_NEAR_WEIGHT_1 = 6.0  # and in the spread of a one-sample pilot's values (12 there: (e), (f) 1.013x the error)
 # with a pilot of 2 samples or more, the share of a pixel's squared deviation taken from the contrast
 # across it (the squared differences of its left and right, and of its upper and lower neighbours'
 # mean luminances, added and over 4: the variance of a pixel that an edge between them halves),
@@ -572,7 +573,8 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     A pixel's count comes from other pixels' pilot samples only, never its own: the pixels are
     coloured as a checkerboard, and a pixel's deviation (of luminance) is estimated from the
     ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5 window), the 4
-    edge neighbours weighing ADAPTIVE_NEAR_WEIGHT and the 8 farther ones 1: the root of their
+    edge neighbours weighing ADAPTIVE_NEAR_WEIGHT (ADAPTIVE_NEAR_WEIGHT_1 with a pilot of one
+    sample) and the 8 farther ones 1: the root of their
     weighted mean variance, ADAPTIVE_CONTRAST of its square taken instead from the contrast across
     the pixel (its left and right, and its upper and lower neighbours' mean luminances: an edge
     between them runs through it), and ADAPTIVE_RIDGE of a thin line's contrast added (left and
@@ -596,7 +598,7 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
 def _counts(film: Film, n0: int, spp: int, n_min: int) -> np.ndarray:
     """``adaptive_counts`` with numpy (a CUDA film's, copied to the host)."""
     h, w = film.height, film.width
-    _, colours = _adaptive_layout(h, w)
+    _, colours = _adaptive_layout(h, w, near_weight(n0))
     nb = _deviations(film, n0)
     counts = np.full(h * w, spp, dtype=np.int32)
     for mine in colours:
@@ -618,7 +620,8 @@ def _deviations(film: Film, n0: int) -> np.ndarray:
     across it (``_contrast``), or with one sample a pixel, the weighted spread of their values
     about their weighted mean."""
     h, w = film.height, film.width
-    weights = _adaptive_layout(h, w)[0]
+    near = near_weight(n0)
+    weights = _adaptive_layout(h, w, near)[0]
     acc = film.data.accum.numpy()
     y = acc[:, 0] * _LUMA[0]  # (each pixel's luminance in this order, as the CPU's pass)
     y += acc[:, 1] * _LUMA[1]
@@ -629,12 +632,12 @@ def _deviations(film: Film, n0: int) -> np.ndarray:
         var -= y * y
         np.maximum(var, np.float32(0.0), out=var)
         var *= np.float32(n0 / max(n0 - 1, 1))
-        d = _neighbour_sum(var, h, w) / weights
+        d = _neighbour_sum(var, h, w, near) / weights
         d *= np.float32(_KEEP)
         d += _contrast(y, h, w)
         return np.sqrt(d)
-    mean = _neighbour_sum(y, h, w) / weights
-    return np.sqrt(np.maximum(_neighbour_sum(y * y, h, w) / weights - mean * mean, 0.0))
+    mean = _neighbour_sum(y, h, w, near) / weights
+    return np.sqrt(np.maximum(_neighbour_sum(y * y, h, w, near) / weights - mean * mean, 0.0))
 
 
 def _contrast(y: np.ndarray, h: int, w: int) -> np.ndarray:
@@ -687,8 +690,14 @@ def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     return base.astype(np.int32)
 
 
-def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:
-    """Σ over ADAPTIVE_NEIGHBOURS of weight × v (flat per-pixel values; 0 outside the image)."""
+def near_weight(n0: int) -> float:
+    """The 4 edge neighbours' weight for a pilot of n0 samples a pixel (the 8 others weigh 1)."""
+    return ADAPTIVE_NEAR_WEIGHT if n0 >= 2 else ADAPTIVE_NEAR_WEIGHT_1
+
+
+def _neighbour_sum(v: np.ndarray, h: int, w: int, near_w: float) -> np.ndarray:
+    """Σ over ADAPTIVE_NEIGHBOURS of weight × v, the 4 edge neighbours weighing ``near_w`` (flat
+    per-pixel values; 0 outside the image)."""
     pad = np.pad(v.reshape(h, w), 2)
     near = np.zeros((h, w), dtype=v.dtype)
     far = np.zeros((h, w), dtype=v.dtype)
@@ -697,14 +706,14 @@ def _neighbour_sum(v: np.ndarray, h: int, w: int) -> np.ndarray:
             near += pad[2 + a:2 + a + h, 2 + b:2 + b + w]
         else:
             far += pad[2 + a:2 + a + h, 2 + b:2 + b + w]
-    return (ADAPTIVE_NEAR_WEIGHT * near + far).reshape(-1)
+    return (near_w * near + far).reshape(-1)
 
 
 @functools.lru_cache(maxsize=8)
-def _adaptive_layout(h: int, w: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """For an h × w film: each pixel's summed neighbour weights (fewer neighbours at the border;
-    at least 1, so that a pixel with none gets deviation 0) and the flat indices of the two
-    checkerboard colours."""
-    weights = np.maximum(_neighbour_sum(np.ones(h * w, dtype=np.float32), h, w), np.float32(1.0))
+def _adaptive_layout(h: int, w: int, near_w: float) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """For an h × w film: each pixel's summed neighbour weights, the 4 edge neighbours weighing
+    ``near_w`` (fewer neighbours at the border; at least 1, so that a pixel with none gets
+    deviation 0) and the flat indices of the two checkerboard colours."""
+    weights = np.maximum(_neighbour_sum(np.ones(h * w, dtype=np.float32), h, w, near_w), np.float32(1.0))
     colour = (np.add.outer(np.arange(h), np.arange(w)) & 1).reshape(-1)
     return weights, (np.flatnonzero(colour == 0), np.flatnonzero(colour == 1))
