@@ -236,7 +236,7 @@ class Film:
         wp.launch(_image_kernels().counts, dim=1, device=self.device,
                   inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
                           float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
-                          near_weight(n0), _KEEP, _CONTRAST4, _RIDGE16, int(spp), int(n_min), float(cap),
+                          _near_weight(n0), _KEEP, _CONTRAST4, _RIDGE16, int(spp), int(n_min), float(cap),
                           *scratch])
         return scratch[-1].numpy().copy()
 
@@ -290,20 +290,21 @@ ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass cost
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
 ADAPTIVE_NEAR_WEIGHT = 12.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
-ADAPTIVE_NEAR_WEIGHT_1 = 6.0  # and in the spread of a one-sample pilot's values (12 there: (e), (f) 1.013x the error)
+# and in the spread of a one-sample pilot's values (12 there gave peer scenes (e) and (f) 1.013x the error)
+ADAPTIVE_NEAR_WEIGHT_1 = 6.0
 # with a pilot of 2 samples or more, the share of a pixel's squared deviation taken from the contrast
 # across it (the squared differences of its left and right, and of its upper and lower neighbours'
 # mean luminances, added and over 4: the variance of a pixel that an edge between them halves),
 # the rest from that mean variance. The mean variance alone spreads an edge's noise over the
 # pixels on either side of it, which took the samples the edge's own pixels needed: relMSE at 4 /
-# 8 / 16 spp against a 1 with the variance alone, 0.60 / 0.83 / 0.92 on the peer scene (a)'s edges,
-# 0.79 / 0.90 / 0.93 on (e)'s penumbrae, 0.90 / 0.96 / 0.96 through (f)'s thin lens, 0.97 / 1.01 /
-# 1.01 on (d)'s mesh at a share of 0.1 (docs/benchmarks.md, levers)
+# 8 / 16 spp against the variance alone 0.59 / 0.82 / 0.91 on the peer scene (a)'s edges, 0.19 /
+# 0.41 / 0.53 on (b), 0.76 / 0.89 / 0.93 on (e)'s penumbrae, 0.90 / 0.96 / 0.96 through (f)'s
+# thin lens, 0.98 / 1.01 / 1.02 on (d)'s mesh (docs/benchmarks.md, levers)
 ADAPTIVE_CONTRAST = 0.125
 # and a thin line's: the square of the left and right neighbours' sum less the upper and lower
-# ones' over 16 (the contrast of a one-pixel line between them, over 4), at this share: on (a)'s
-# far bars, with the near weight of 12 (was 6), relMSE 0.85 / 0.92 / 0.94 at 4 / 8 / 16 spp,
-# the other peer scenes within 2% (docs/benchmarks.md, levers)
+# ones' over 16 (the contrast of a one-pixel line between them, over 4), at this share: with the
+# near weight of 12 (was 6), relMSE 0.84 / 0.92 / 0.94 at 4 / 8 / 16 spp on (a)'s far bars, the
+# other peer scenes within 2% (docs/benchmarks.md, levers)
 ADAPTIVE_RIDGE = 0.25
 _KEEP = 1.0 - ADAPTIVE_CONTRAST  # (these exact in float32, as the native pass takes them)
 _CONTRAST4 = ADAPTIVE_CONTRAST / 4.0
@@ -378,9 +379,9 @@ auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt
     float sv = near_weight * near_v;
     sv = sv + far_v;
     sv = sv / wt;
-    float d = sv * keep;
+    float d = sv * keep;  // (a pilot of 2 or more: con, the contrast and ridge across the pixel)
     d = d + con;
-    if (n0 < 2) {
+    if (n0 < 2) {  // (one sample: the spread of the neighbours' values instead)
         float sy = near_weight * near_y;
         sy = sy + far_y;
         sy = sy / wt;
@@ -574,21 +575,20 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     coloured as a checkerboard, and a pixel's deviation (of luminance) is estimated from the
     ADAPTIVE_NEIGHBOURS pixels of the other colour around it (those of its 5 × 5 window), the 4
     edge neighbours weighing ADAPTIVE_NEAR_WEIGHT (ADAPTIVE_NEAR_WEIGHT_1 with a pilot of one
-    sample) and the 8 farther ones 1: the root of their
-    weighted mean variance, ADAPTIVE_CONTRAST of its square taken instead from the contrast across
-    the pixel (its left and right, and its upper and lower neighbours' mean luminances: an edge
-    between them runs through it), and ADAPTIVE_RIDGE of a thin line's contrast added (left and
-    right against above and below: a line between them runs along it), or with a pilot of one
-    sample (2 spp), the weighted spread of their values about their weighted mean (noise and image
-    detail alike: both call for samples). So
-    the count is independent of the pixel's own samples, and the mean of all of them, pilot
-    included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also see an edge or
-    a penumbra that a pixel's few samples may miss; the weights keep a thin edge's samples on the
-    pixels next to it. Within each colour the budget is shared in proportion to those deviations
-    (Neyman allocation: the summed variance Σ σ²/N of the pixel means is least for a given
-    total), with every pixel at least max(n0, spp / ADAPTIVE_MIN_SHARE) and at most
-    ADAPTIVE_MAX_FACTOR × spp; the normaliser of a colour is itself a function of the other
-    colour's samples."""
+    sample) and the 8 farther ones 1: the root of their weighted mean variance, ADAPTIVE_CONTRAST
+    of its square taken instead from the contrast across the pixel (its left and right, and its
+    upper and lower neighbours' mean luminances: an edge between them runs through it), and
+    ADAPTIVE_RIDGE of a thin line's contrast added (left and right against above and below: a
+    line between them runs along it); or with a pilot of one sample (2 spp), the weighted spread
+    of their values about their weighted mean (noise and image detail alike: both call for
+    samples). So the count is independent of the pixel's own samples, and the mean of all of
+    them, pilot included, stays unbiased: no sample is thrown away. Twelve pixels' pilots also see
+    an edge or a penumbra that a pixel's few samples may miss; the weights, the contrast and the
+    ridge keep an edge's or a thin line's samples on the pixels it runs through. Within each
+    colour the budget is shared in proportion to those deviations (Neyman allocation: the summed
+    variance Σ σ²/N of the pixel means is least for a given total), with every pixel at least
+    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp; the normaliser of a
+    colour is itself a function of the other colour's samples."""
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
     if film.data.accum.device.is_cpu:  # (the same numbers by native code, see pilot_counts)
         return film.pilot_counts(n0, spp, n_min, ADAPTIVE_MAX_FACTOR * spp)
@@ -598,7 +598,7 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
 def _counts(film: Film, n0: int, spp: int, n_min: int) -> np.ndarray:
     """``adaptive_counts`` with numpy (a CUDA film's, copied to the host)."""
     h, w = film.height, film.width
-    _, colours = _adaptive_layout(h, w, near_weight(n0))
+    _, colours = _adaptive_layout(h, w, _near_weight(n0))
     nb = _deviations(film, n0)
     counts = np.full(h * w, spp, dtype=np.int32)
     for mine in colours:
@@ -620,7 +620,7 @@ def _deviations(film: Film, n0: int) -> np.ndarray:
     across it (``_contrast``), or with one sample a pixel, the weighted spread of their values
     about their weighted mean."""
     h, w = film.height, film.width
-    near = near_weight(n0)
+    near = _near_weight(n0)
     weights = _adaptive_layout(h, w, near)[0]
     acc = film.data.accum.numpy()
     y = acc[:, 0] * _LUMA[0]  # (each pixel's luminance in this order, as the CPU's pass)
@@ -690,7 +690,7 @@ def _round_keeping_sum(x: np.ndarray) -> np.ndarray:
     return base.astype(np.int32)
 
 
-def near_weight(n0: int) -> float:
+def _near_weight(n0: int) -> float:
     """The 4 edge neighbours' weight for a pilot of n0 samples a pixel (the 8 others weigh 1)."""
     return ADAPTIVE_NEAR_WEIGHT if n0 >= 2 else ADAPTIVE_NEAR_WEIGHT_1
 
