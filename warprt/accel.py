@@ -567,7 +567,7 @@ class MeshTree:
         h = escape_horizons(self, points, faces, edges)
         self.escape = None if h is None else wp.array(h.reshape(-1), dtype=wp.uint32, device=self.mesh.device)
         # (the frames where the bounds were found: the escaping faces alone have every sector alike)
-        self.frames = None if h is None or len(faces) > HORIZON_MAX_TRIANGLES else wp.array(
+        self.frames = None if h is None or not horizon_bounds_found(self, len(faces)) else wp.array(
             escape_frames(h[:, :3].copy().view(np.float32)).reshape(-1), dtype=wp.float32, device=self.mesh.device)
         c = normal_cones(self, points, faces, edges)
         self.cones = None if c is None else wp.array(c.reshape(-1), dtype=wp.float32, device=self.mesh.device)
@@ -1699,6 +1699,12 @@ def horizon_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.u
                   outp)
 
 
+def horizon_bounds_found(tree: "MeshTree", n: int) -> bool:
+    """Whether ``escape_horizons`` finds the bounds of a mesh of n triangles with this tree copy
+    (else its records hold the escaping faces alone)."""
+    return n <= HORIZON_MAX_TRIANGLES and tree.usable
+
+
 def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
                     edges: tuple | None = None) -> np.ndarray | None:
     """Every face's escape horizons (see above) as uint32 (F, 8), or None where no face has an
@@ -1712,7 +1718,7 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
     edges = edge_keys(f) if edges is None else edges
     known = escape_sides(v, f, edges)
     known = np.zeros(n, dtype=np.uint8) if known is None else known
-    if n > HORIZON_MAX_TRIANGLES or not tree.usable:
+    if not horizon_bounds_found(tree, n):
         if not known.any():
             return None
         h = np.zeros((n, ESCAPE_WORDS), dtype=np.uint32)

@@ -317,10 +317,10 @@ ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket a
 # took 1-2 ms): ``_counts``' numpy operations in the same order on the same values, so the same
 # counts. Each pixel's luminance y and its variance (or y², for a pilot of one sample), then its
 # weighted sums over the other colour's 12 neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in
-# that order, 0 outside the image), the contrast across it and its deviation (``_deviations``,
-# ``_contrast``; ``keep`` = 1 - ADAPTIVE_CONTRAST, ``contrast4`` = ADAPTIVE_CONTRAST / 4, ``ridge16`` =
-# ADAPTIVE_RIDGE / 16), then each colour's shares
-# in float64 and their rounding (``_round_keeping_sum``: a histogram of the fractional parts).
+# that order, 0 outside the image), the contrast and ridge across it and its deviation
+# (``_deviations``, ``_contrast``; ``keep`` = 1 - ADAPTIVE_CONTRAST, ``contrast4`` =
+# ADAPTIVE_CONTRAST / 4, ``ridge16`` = ADAPTIVE_RIDGE / 16), then each colour's shares in float64
+# and their rounding (``_round_keeping_sum``: a histogram of the fractional parts).
 _PILOT_COUNTS = r"""
 #if !defined(__CUDA_ARCH__)
 const float* acc = reinterpret_cast<const float*>(accum.data);
@@ -379,9 +379,11 @@ auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt
     float sv = near_weight * near_v;
     sv = sv + far_v;
     sv = sv / wt;
-    float d = sv * keep;  // (a pilot of 2 or more: con, the contrast and ridge across the pixel)
-    d = d + con;
-    if (n0 < 2) {  // (one sample: the spread of the neighbours' values instead)
+    float d;
+    if (n0 >= 2) {  // (con: the contrast and ridge across the pixel)
+        d = sv * keep;
+        d = d + con;
+    } else {  // (one sample: the spread of the neighbours' values)
         float sy = near_weight * near_y;
         sy = sy + far_y;
         sy = sy / wt;
