@@ -1975,7 +1975,7 @@ def test_a_rectangle_lights_shadow_rays_never_test_its_own_rectangle():
                 alone[l] = tr.transmittance(scene, o[0, l], d[0, l], t[l], 0.0, own)[0]
             packet[0] = tr.occluded_packet(scene, 8, 255, _lanes(o, 0, 0), _lanes(o, 0, 1), _lanes(o, 0, 2),
                                            _lanes(d, 0, 0), _lanes(d, 0, 1), _lanes(d, 0, 2), tm, accel.PacketF(),
-                                           accel.PacketI(), accel.PacketI(), own)
+                                           accel.PacketI(), accel.PacketI(), own, -1)
 
         args = [wp.array(o[None], dtype=wp.vec3, device="cpu"), wp.array(d[None], dtype=wp.vec3, device="cpu"),
                 wp.array(t, dtype=float, device="cpu")]
@@ -1989,3 +1989,104 @@ def test_a_rectangle_lights_shadow_rays_never_test_its_own_rectangle():
             wp.launch(k, dim=1, device="cpu", inputs=[built.data, *args, own, alone, packet])
             np.testing.assert_array_equal(alone.numpy() > 0.0, passed)
             assert int(packet.numpy()[0]) == int(sum(1 << l for l in range(8) if not passed[l])), own
+
+
+def _buffer_cell(v: np.ndarray, res: int) -> np.ndarray:
+    """The light buffer's cell of directions v (n × 3) from the light, as ``accel.light_buffer``
+    defines the faces: the largest component's axis (x over y over z where they tie), its sign,
+    the two others (in the order after it) over its size, binned in [-1, 1]."""
+    av = np.abs(v)
+    a = np.where((av[:, 0] >= av[:, 1]) & (av[:, 0] >= av[:, 2]), 0, np.where(av[:, 1] >= av[:, 2], 1, 2))
+    m = av[np.arange(len(v)), a]
+    face = 2 * a + (v[np.arange(len(v)), a] < 0)
+    tu = v[np.arange(len(v)), (a + 1) % 3] / m
+    tv = v[np.arange(len(v)), (a + 2) % 3] / m
+    col = np.minimum(np.floor((tu + 1.0) * 0.5 * res), res - 1).astype(np.int64)
+    row = np.minimum(np.floor((tv + 1.0) * 0.5 * res), res - 1).astype(np.int64)
+    return (face * res + row) * res + col
+
+
+@pytest.mark.parametrize("res", [8, 128])
+def test_a_light_buffer_cell_lists_every_box_a_direction_through_it_meets(res):
+    """``accel.light_buffer``: the cell of the direction from the light to any point of a box
+    lists that box's id (a box in pieces: its pieces' ids, once a cell), for boxes on every side
+    of the light, boxes across the planes through it and boxes near it; the cells hold far fewer
+    than all the boxes; and its reach is what its error bound allows from the nearest box."""
+    rng = np.random.default_rng(5)
+    light = np.array([0.3, 2.0, -0.5])
+    centres = light + rng.uniform(-4.0, 4.0, (300, 3))
+    centres[:20, 1] = light[1]  # across the plane y = light's, and so on
+    centres[20:40, 0] = light[0]
+    centres[40:50] = light + rng.uniform(-0.3, 0.3, (10, 3))  # near the light
+    half = rng.uniform(0.01, 0.4, (300, 3))
+    half[:5] = (3.0, 0.02, 0.02)  # long bars
+    lo, hi = centres - half, centres + half
+    keep = ~((lo <= light) & (hi >= light)).all(axis=1)  # (no box holds the light)
+    lo, hi = lo[keep], hi[keep]
+    ids = np.arange(len(lo)) // 2  # two boxes a shape
+    cells, items, reach = accel.light_buffer(light, lo, hi, ids, res, 1 << 24)
+    assert cells.shape == (6 * res * res + 1,) and cells[0] == 0 and cells[-1] == len(items)
+    assert (np.diff(cells) >= 0).all()
+    for c in range(6 * res * res):  # each cell's ids increasing, each once
+        assert (np.diff(items[cells[c]:cells[c + 1]]) > 0).all()
+    pts = lo[:, None] + rng.random((len(lo), 200, 3)) * (hi - lo)[:, None]
+    corners = np.stack([np.where(np.array(bits)[None], hi, lo) for bits in np.ndindex(2, 2, 2)], 1)
+    pts = np.concatenate([pts, corners], 1)
+    cell = _buffer_cell((pts - light).reshape(-1, 3), res).reshape(len(lo), -1)
+    for b in range(len(lo)):
+        for c in np.unique(cell[b]):
+            assert ids[b] in items[cells[c]:cells[c + 1]], (b, c)
+    assert len(items) < 0.2 * (6 * res * res) * (ids.max() + 1)
+    r_near = np.sqrt((np.maximum(np.maximum(lo - light, light - hi), 0.0) ** 2).sum(axis=1)).min()
+    pad = accel.LB_PAD * 2.0 / res
+    assert reach == pytest.approx((pad * r_near / 3.0 - accel.LB_POS_ERR * 2.0) / (accel.LB_DIR_ERR + accel.LB_POS_ERR))
+    assert accel.light_buffer(light, lo, hi, ids, res, len(items) + len(cells)) is not None
+    assert accel.light_buffer(light, lo, hi, ids, res, len(items) + len(cells) - 1) is None  # over its room
+    holds = np.vstack([lo, light - 0.01]), np.vstack([hi, light + 0.01])
+    assert accel.light_buffer(light, *holds, np.arange(len(lo) + 1), res, 1 << 24) is None  # a box holds the light
+
+
+def test_a_packets_light_cells_are_the_buffers_cells():
+    """``geometry.light_cells``: each lane's cell of the light buffer, as the buffer defines them
+    (``_buffer_cell`` above), for origins in every direction, on the faces' edges and corners
+    (ties between components, signed zeros), within and beyond the reach; the lanes at the light
+    or beyond the reach are left out."""
+    from warprt.geometry import light_cells
+
+    res, cell0, reach = 16, 1000, 3.0
+    light = np.array([0.25, -1.0, 2.0], np.float32)
+    rng = np.random.default_rng(8)
+    v = rng.normal(size=(400, 3)).astype(np.float32) * rng.uniform(0.1, 2.5, (400, 1)).astype(np.float32)
+    ties = np.array([[1, 1, 0.5], [-1, 1, 0.5], [0.5, -1, -1], [1, 0.5, 1], [-1, -1, -1], [1, 1, 1], [0, 0, 1],
+                     [0, -1, 0], [-1, 0, 0], [-0.0, 0.0, -2], [0.999, -1, 0.2], [1, -0.999, 1]], np.float32)
+    v[:len(ties)] = ties
+    v[len(ties)] = 0.0  # at the light
+    v[len(ties) + 1:len(ties) + 9] *= 40.0  # beyond the reach
+    o = (light + v).astype(np.float32)
+    o = np.concatenate([o, np.zeros((-len(o) % 8, 3), np.float32)]).reshape(-1, 8, 3)
+    lanes = rng.integers(1, 256, len(o))
+    lanes[:2] = 255  # (every tie)
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
+    def k(p: wp.vec3, o: wp.array(dtype=wp.vec3, ndim=2), lanes: wp.array(dtype=int),
+          cells: wp.array(dtype=int, ndim=2), masks: wp.array(dtype=int)):
+        i = wp.tid()
+        c = accel.PacketI()
+        masks[i] = light_cells(p, 3.0, 16, 1000, lanes[i], _lanes(o, i, 0), _lanes(o, i, 1), _lanes(o, i, 2), c)
+        for l in range(8):
+            cells[i, l] = c[l]
+
+    cells = wp.zeros((len(o), 8), dtype=int, device="cpu")
+    masks = wp.zeros(len(o), dtype=int, device="cpu")
+    wp.launch(k, dim=len(o), device="cpu", inputs=[wp.vec3(*light), wp.array(o, dtype=wp.vec3, device="cpu"),
+                                                   wp.array(lanes, dtype=int, device="cpu"), cells, masks])
+    rel = (o.reshape(-1, 3) - light).astype(np.float32)  # (the kernel's float32 difference)
+    d2 = (rel.astype(np.float64) ** 2).sum(axis=1)
+    near = (d2 <= reach * reach) & (np.abs(rel).max(axis=1) > 0)
+    lane_on = ((lanes[:, None] >> np.arange(8)) & 1).astype(bool).reshape(-1)
+    want = near & lane_on
+    got = ((masks.numpy()[:, None] >> np.arange(8)) & 1).astype(bool).reshape(-1)
+    np.testing.assert_array_equal(got, want)
+    assert want.sum() > 100 and (lane_on & ~near).sum() > 4
+    expect = cell0 + _buffer_cell(rel[want].astype(np.float64), res)
+    np.testing.assert_array_equal(cells.numpy().reshape(-1)[want], expect)

@@ -13,6 +13,7 @@ import pytest
 import warprt
 from warprt import Features
 from warprt import build as build_module
+from warprt import accel
 
 render_module = importlib.import_module("warprt.render")  # (``warprt.render`` is also the function)
 
@@ -348,20 +349,10 @@ def test_area_lights_drawn_for_a_packet_equal_each_lane_drawn_alone(device, monk
         assert a.min() >= 0.0 and a.mean() > 0.05
 
 
-@pytest.mark.parametrize("sampler, bvh", [("sobol", True), ("sobol", False), ("stratified", True)])
-def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeypatch, sampler, bvh):
-    """Without secondary rays a packet's shading points also take the point and directional lights
-    together (``lights.point_lights_packet``: on the CPU each light's directions, n·l, n·h and
-    shadow rays for the 8 lanes as clang vectors), and their shadow rays go together
-    (``trace.occluded_packet``: spheres, planes, rectangles, the analytic BVH and the mesh
-    instances' boxes for all lanes at once, disks, solids and triangles lane by lane). Every
-    lane's light must be the one it gets alone, bit for bit, with and without the analytic BVH:
-    an inverse-square, an unattenuated (behind a wall: planes cast shadows too) and a directional
-    light, a light just above a surface (shadow rays shorter than the stop), Blinn-Phong lobes,
-    moving spheres (their centres at each lane's time), a posed mesh, a box, disks and rectangles
-    that cast shadows, full and part packets, packets over several pixels (adaptive counts)."""
-    from warprt.trace import PACKET
-
+def _point_lights_scene(sampler: str, extra: tuple = ()) -> warprt.Scene:
+    """Point lights over spheres (half of them moving), a posed mesh, a box, a disk and a
+    rectangle casting shadows on two planes, with ``extra`` shapes: the scene of
+    ``test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone``."""
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 16, endpoint=False), np.linspace(0, 2 * np.pi, 8, endpoint=False),
                        indexing="ij")
     verts = np.stack([(0.5 + 0.2 * np.cos(v)) * np.cos(u), 0.2 * np.sin(v), (0.5 + 0.2 * np.cos(v)) * np.sin(u)],
@@ -391,7 +382,25 @@ def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeyp
     materials = {"floor": warprt.Material(kd=0.7), "ball": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.4, p=40),
                  "shiny": warprt.Material(kd=0.3, ks=0.6, p=200)}
     camera = warprt.Camera(eye=(0.3, 1.8, 3.2), look_at=(0.0, 0.3, 0.0), width=24, height=18, shutter=(0.0, 1.0))
-    scene = _scene(shapes=shapes, lights=lights, materials=materials, camera=camera).with_settings(sampler=sampler)
+    return _scene(shapes=shapes + extra, lights=lights, materials=materials,
+                  camera=camera).with_settings(sampler=sampler)
+
+
+@pytest.mark.parametrize("sampler, bvh", [("sobol", True), ("sobol", False), ("stratified", True)])
+def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeypatch, sampler, bvh):
+    """Without secondary rays a packet's shading points also take the point and directional lights
+    together (``lights.point_lights_packet``: on the CPU each light's directions, n·l, n·h and
+    shadow rays for the 8 lanes as clang vectors), and their shadow rays go together
+    (``trace.occluded_packet``: spheres, planes, rectangles, the analytic BVH and the mesh
+    instances' boxes for all lanes at once, disks, solids and triangles lane by lane). Every
+    lane's light must be the one it gets alone, bit for bit, with and without the analytic BVH:
+    an inverse-square, an unattenuated (behind a wall: planes cast shadows too) and a directional
+    light, a light just above a surface (shadow rays shorter than the stop), Blinn-Phong lobes,
+    moving spheres (their centres at each lane's time), a posed mesh, a box, disks and rectangles
+    that cast shadows, full and part packets, packets over several pixels (adaptive counts)."""
+    from warprt.trace import PACKET
+
+    scene = _point_lights_scene(sampler)
     if not bvh:
         monkeypatch.setattr(build_module, "ANALYTIC_BVH_MIN", 10 ** 9)
     ren = warprt.Renderer(scene, device=device, packets=True)  # CUDA's default is one by one
@@ -406,6 +415,34 @@ def test_point_lights_lit_for_a_packet_equal_each_lane_lit_alone(device, monkeyp
     b_adaptive = alone.render(spp=8, seed=4, progress=False, adaptive=True, pass_spp=1).image
     assert a.tobytes() == b.tobytes()
     assert a_adaptive.tobytes() == b_adaptive.tobytes()
+    assert a.min() >= 0.0 and a.mean() > 0.05
+
+
+def test_light_buffers_answer_as_the_bvh_walk(monkeypatch):
+    """On the CPU a point light gets a light buffer (``accel.light_buffer``): a camera packet's
+    shadow rays towards it test the primitives listed in their origin's cell instead of walking
+    the analytic BVH. Rendered with and without the buffers (``accel.LB_MAX_ITEMS`` 0: every ray
+    walks), the images are the same bit for bit, with the scene of the test above, long bars on
+    the floor (boxed in pieces) and one bar above it, and a small sphere beside a light, which cuts
+    that light's reach to a part of the scene (its farther rays walk). A directional light has
+    none."""
+    bars = tuple(warprt.Rectangle(corner=(-1.5, 0.002, 0.9 - 0.35 * k), edge1=(3.0, 0.0, -0.4), edge2=(0.02, 0.0, 0.15),
+                                  material="shiny") for k in range(5))
+    extra = bars + (warprt.Rectangle(corner=(-1.2, 0.7, 0.9), edge1=(1.5, 0.0, -0.5), edge2=(0.03, 0.02, 0.12),
+                                     material="floor"),
+                    warprt.Sphere(center=(1.0, 2.476, 2.0), radius=0.02, material="ball"))
+    scene = _point_lights_scene("sobol", extra)
+    ren = warprt.Renderer(scene, device="cpu", packets=True)
+    rec = ren.built.data.plights.numpy()
+    assert list(rec["lb_cell0"] >= 0) == [True, True, False, True]  # (the third: directional)
+    assert 2.5 < rec["lb_reach"][0] < 5.0  # (the light is 2.5 above the floor)
+    monkeypatch.setattr(accel, "LB_MAX_ITEMS", 0)
+    walk = warprt.Renderer(scene, device="cpu", packets=True)
+    assert (walk.built.data.plights.numpy()["lb_cell0"] == -1).all()
+    for spp, adaptive in ((11, False), (8, True)):
+        a = ren.render(spp=spp, seed=4, progress=False, adaptive=adaptive).image
+        b = walk.render(spp=spp, seed=4, progress=False, adaptive=adaptive).image
+        assert a.tobytes() == b.tobytes()
     assert a.min() >= 0.0 and a.mean() > 0.05
 
 

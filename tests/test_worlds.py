@@ -184,6 +184,10 @@ def test_analytic_bvh_over_worlds_agrees_with_the_loop():
     assert br.bvh is not None
     br.set_shape_poses(poses)
     batch = br.render(spp=1).numpy()
+    # the worlds' lights, posed, have no light buffer (accel.light_buffer), which a single render
+    # of the scene has
+    assert (br.tables.plights.numpy()["lb_cell0"] == -1).all()
+    assert int(warprt.Renderer(scene, device="cpu").built.data.plights.numpy()["lb_cell0"][0]) >= 0
     for w in range(W):
         moved = tuple(warprt.Sphere(center=tuple(np.add(s.center, poses[w, i, :3])), radius=0.25)
                       for i, s in enumerate(spheres))

@@ -341,6 +341,97 @@ def tree_depth(c0: np.ndarray, c1: np.ndarray) -> int:
     return int(depth.max())
 
 
+# A point light's light buffer (Haines and Greenberg's, 1986): a cube of 6 · res² cells around the
+# light, each listing the analytic BVH's primitives whose box some direction through the cell
+# meets. A shadow ray towards the light can only meet a primitive listed in the cell of its
+# origin's direction from the light (``trace.occluded_packet``), so it tests those few instead of
+# walking the tree: every answer is the walk's, since each primitive is tested the same way.
+LB_RES = 128  # cells along a cube face's side
+LB_RECT_PIECES = 64  # a rectangle's boxes in a light buffer: pieces about as long as it is wide, up to this many
+LB_PAD = 0.25  # each box's cells padded by this share of a cell (in the face's tangent units)
+LB_MAX_ITEMS = 1 << 21  # a scene's buffers hold at most this many cells and (cell, primitive) entries
+LB_DIR_ERR = 1.3e-6  # bound on a float32 shadow ray's direction error (unit vector) per unit length
+LB_POS_ERR = 3e-7  # and on a float32 position's rounding, relative to its magnitude
+
+
+def light_buffer(pos, lo: np.ndarray, hi: np.ndarray, ids: np.ndarray, res: int = LB_RES, room: int = LB_MAX_ITEMS):
+    """The light buffer of a point light at ``pos`` over boxes ``lo``, ``hi`` (n × 3, padded
+    like the BVH's) of the primitives ``ids`` (n: a shape in pieces has a box a piece, each with
+    its id, and is listed once a cell): (cells, items, reach), or None where it would hold more
+    than ``room`` cells and items together or where no ray could use it.
+
+    Face f looks along axis a = f // 2, positive for even f, its cell (row, column) holding the
+    directions v from the light with |v_a| the largest component and (v_b, v_c) / |v_a| in that
+    cell of [-1, 1]² (b = (a + 1) % 3, c = (a + 2) % 3): cell index f · res² + row · res + column,
+    row along c. ``cells`` (6 · res² + 1) are each cell's first entry in ``items`` (the ids, a
+    cell's in increasing order) and the end. A box's cells hold every direction to its points,
+    widened by LB_PAD of a cell. ``reach`` is the distance from the light within which a ray's
+    origin may use the buffer: a float32 segment's points and their directions from the light
+    stray from the exact line by LB_DIR_ERR × its length and LB_POS_ERR × its coordinates, which
+    seen from the nearest box (r_near away) must stay within the padding (a face's tangent
+    changes at most 3× as fast as the angle)."""
+    p = np.asarray(pos, dtype=np.float64)
+    lo = np.asarray(lo, dtype=np.float64) - p
+    hi = np.asarray(hi, dtype=np.float64) - p
+    n = lo.shape[0]
+    if n == 0:
+        return None
+    pad = LB_PAD * 2.0 / res
+    r_near = float(np.sqrt((np.maximum(np.maximum(lo, -hi), 0.0) ** 2).sum(axis=1)).min())
+    reach = (pad * r_near / 3.0 - LB_POS_ERR * float(np.abs(p).max())) / (LB_DIR_ERR + LB_POS_ERR)
+    if not reach > 0.0:
+        return None
+    cell_ids, box_ids = [], []
+    total = 0
+    for f in range(6):
+        a, s = f // 2, 1.0 if f % 2 == 0 else -1.0
+        b, c = (a + 1) % 3, (a + 2) % 3
+        z0 = lo[:, a] if s > 0 else -hi[:, a]
+        z1 = hi[:, a] if s > 0 else -lo[:, a]
+        on = np.flatnonzero(z1 > 0.0)
+        if on.size == 0:
+            continue
+        z0, z1 = z0[on], z1[on]
+        # a box reaching the plane through the light (z0 <= 0): z over (0, z1], so a tangent
+        # y / z over [y0 / z1, ∞) where its y > 0, (-∞, y1 / z1] where y < 0, else all
+        cross = z0 <= 0.0
+        zs = np.where(cross, 1.0, z0)
+        ranges = []
+        for ax in (b, c):
+            l0, l1 = lo[on, ax], hi[on, ax]
+            t_lo = np.where(cross, np.where(l0 > 0.0, l0 / z1, -np.inf), np.minimum(l0 / zs, l0 / z1)) - pad
+            t_hi = np.where(cross, np.where(l1 < 0.0, l1 / z1, np.inf), np.maximum(l1 / zs, l1 / z1)) + pad
+            ranges.append((np.maximum(t_lo, -1.0), np.minimum(t_hi, 1.0)))
+        (u0, u1), (v0, v1) = ranges
+        seen = (u1 >= -1.0) & (u0 <= 1.0) & (v1 >= -1.0) & (v0 <= 1.0)
+        cell = lambda t: np.clip(np.floor((t + 1.0) * 0.5 * res), 0, res - 1).astype(np.int64)
+        i0, i1, k0, k1 = cell(u0[seen]), cell(u1[seen]), cell(v0[seen]), cell(v1[seen])
+        boxes = on[seen]
+        nu, nv = i1 - i0 + 1, k1 - k0 + 1
+        count = nu * nv
+        total += int(count.sum())
+        if total > 8 * room:  # (a bound on the work before the pieces' pairs merge)
+            return None
+        # every (box, cell) pair of the box's rectangle of cells
+        rep = np.repeat(np.arange(boxes.size), count)
+        local = np.arange(rep.size) - np.repeat(np.cumsum(count) - count, count)
+        col = i0[rep] + local % nu[rep]
+        row = k0[rep] + local // nu[rep]
+        cell_ids.append(f * res * res + row * res + col)
+        box_ids.append(boxes[rep])
+    if not cell_ids:
+        return None
+    cell_ids = np.concatenate(cell_ids)
+    item = np.asarray(ids, dtype=np.int64)[np.concatenate(box_ids)]
+    key = np.unique(cell_ids * (int(item.max()) + 1) + item)  # one entry per (cell, id), sorted
+    cell_ids, item = key // (int(item.max()) + 1), key % (int(item.max()) + 1)
+    if 6 * res * res + 1 + cell_ids.size > room:
+        return None
+    cells = np.zeros(6 * res * res + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cell_ids, minlength=6 * res * res), out=cells[1:])
+    return cells.astype(np.int32), item.astype(np.int32), reach
+
+
 def forest_nodes(trees, device) -> "wp.array":
     """The nodes of several trees, one after another, as a BvhNode array; tree k's node and
     primitive refs are offset by k · (its node count) and k · (its primitive count)."""

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from . import accel
-from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes
+from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes, light_buffer
 from .camera import camera_data
 from .errors import SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
@@ -40,9 +40,11 @@ from .trace import instance_box_kernel
 class DeviceScene:
     """A scene's tables on one device. Keeps every ``wp.Mesh`` alive while its id is in use."""
 
-    def __init__(self, scene: Scene, device: "wp.context.Device", assets: dict | None = None):
+    def __init__(self, scene: Scene, device: "wp.context.Device", assets: dict | None = None,
+                 light_buffers: bool = True):
         self.scene = scene
         self.device = device
+        self.light_buffers = light_buffers  # whether CPU point lights get light buffers (_light_buffers)
         # mesh assets by key: (wp.Mesh, vertex normals); a previous DeviceScene's assets can be
         # passed in so that re-posed or re-lit frames never rebuild a BVH
         self.assets: dict[tuple, tuple] = dict(assets or {})
@@ -152,14 +154,14 @@ class DeviceScene:
         d.mats = table(MatRec, [dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
                                      fresnel=FRESNEL_IDS[m.fresnel], gloss=m.glossy_exponent,
                                      frost=m.frosted_exponent, emit=le) for m, le in mats], dev)
-        d.n_plights = len(plights)
-        d.plights = table(PointLightRec, [point_light_row(l) for l in plights], dev)
         d.n_alights = len(alights)
         d.alights = table(AreaLightRec, alights, dev)
         self._auto_samples = 1  # what the "auto" lights' rows hold (set_auto_light_samples)
         d.ambient = wp.vec3(*scene.ambient)
         d.background = wp.vec3(*scene.background)
         self._analytic_bvh(d, rows, [m for m, _ in mats])
+        d.n_plights = len(plights)
+        d.plights = table(PointLightRec, self._light_buffers(d, rows, plights), dev)
         self.data = d
         self.camera = camera_data(scene)
 
@@ -331,16 +333,58 @@ class DeviceScene:
         prims = [(kind, j, box) for kind, j, whole in prims
                  for box in (rect_pieces(rows[kind.table][j]) if kind is rect_kind and not any(
                      materials[rows[kind.table][j]["mat"]].transparency) else [whole])]
-        lo = np.array([b[0] for _, _, b in prims], dtype=np.float64)
-        hi = np.array([b[1] for _, _, b in prims], dtype=np.float64)
-        # float32 rounding of the bounds must not cut off a hit: pad by a relative margin
-        pad = (hi - lo).max(axis=1, keepdims=True) * 1e-6 + np.maximum(np.abs(lo), np.abs(hi)).max(axis=1, keepdims=True) * 1e-6
-        tree = build_tree(lo - pad, hi + pad)
+        tree = build_tree(*_padded([b for _, _, b in prims]))
         self.analytic_bvh = tree
         d.bvh_root = 0
         d.bvh_nodes = forest_nodes([tree], dev)
         tags = np.array([(kind.tag, j) for kind, j, _ in prims], dtype=np.int32)
         d.bvh_prims = wp.array(tags[tree[0]], dtype=wp.vec2i, device=dev)
+        self._bvh_leaves = tags[tree[0]]
+
+    def _light_buffers(self, d: SceneData, rows: dict[str, list[dict]], plights: list) -> list[dict]:
+        """The point and directional lights' rows, with a light buffer (``accel.light_buffer``) for
+        each point light of a CPU scene with an analytic BVH (and ``light_buffers``) where one is
+        worth it, while the scene's buffers hold at most ``accel.LB_MAX_ITEMS`` cells and entries;
+        their arrays into ``d.lb_cells`` and ``d.lb_items``. A buffer boxes every shape of the BVH,
+        a rectangle in pieces about as long as it is wide (a long bar's one box fills cells far
+        beyond it), each box tagged with the shape's first primitive in ``bvh_prims``."""
+        out = [dict(point_light_row(l), lb_cell0=-1, lb_res=0, lb_reach=0.0) for l in plights]
+        cells, items = [], []
+        room = accel.LB_MAX_ITEMS
+        if (self.light_buffers and wp.get_device(self.device).is_cpu and self.analytic_bvh is not None
+                and any(isinstance(l, PointLight) for l in plights)):
+            first = {}
+            for j, (tag, row) in enumerate(self._bvh_leaves):
+                first.setdefault((int(tag), int(row)), j)
+            pieces = lambda kind, row: (rect_pieces(row, accel.LB_RECT_PIECES) if kind is BY_TAG[KIND_RECT]
+                                        else [kind.bounds(row)])
+            boxes = [(first[kind.tag, j], box) for kind in KINDS if kind.bounds is not None
+                     for j, row in enumerate(rows[kind.table]) for box in pieces(kind, row)]
+            lo, hi = _padded([b for _, b in boxes])
+            ids = np.array([j for j, _ in boxes], dtype=np.int64)
+            for rec, light in zip(out, plights):
+                if not isinstance(light, PointLight):
+                    continue
+                lb = light_buffer(light.position, lo, hi, ids, accel.LB_RES, room)
+                if lb is not None:
+                    c, it, reach = lb
+                    rec.update(lb_cell0=sum(map(len, cells)), lb_res=accel.LB_RES, lb_reach=reach)
+                    cells.append(c + sum(map(len, items)))
+                    items.append(it)
+                    room -= c.size + it.size
+        for name, parts in (("lb_cells", cells), ("lb_items", items)):
+            setattr(d, name, wp.array(np.concatenate(parts) if parts else np.zeros(1, np.int32), dtype=int,
+                                      device=self.device))
+        return out
+
+
+def _padded(boxes: list) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (lo, hi) as two float64 arrays, each widened by a relative margin: the float32
+    rounding of the bounds must not cut off a hit."""
+    lo = np.array([b[0] for b in boxes], dtype=np.float64)
+    hi = np.array([b[1] for b in boxes], dtype=np.float64)
+    pad = (hi - lo).max(axis=1, keepdims=True) * 1e-6 + np.maximum(np.abs(lo), np.abs(hi)).max(axis=1, keepdims=True) * 1e-6
+    return lo - pad, hi + pad
 
 
 def _light_regions(scene: Scene) -> list | None:

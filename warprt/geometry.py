@@ -350,6 +350,69 @@ def sphere_hits_packet(c0: wp.vec3, dc: wp.vec3, moving: int, r: float, lanes: i
     ...
 
 
+
+# The cell of a point light's buffer (``accel.light_buffer``) holding the direction from the light
+# at p to each lane's origin, as an index into ``SceneData.lb_cells`` (the buffer's first cell
+# cell0, res² cells a face): the face of the direction's largest component (x over y over z where
+# they tie), its other two over that one's size, in [-1, 1], binned. Returns the lanes (of the bit
+# mask ``lanes``) whose origin lies within ``reach`` of the light and not at it; the others' cells
+# are undefined.
+_LIGHT_CELLS = r"""
+int res = 0;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef float v8 __attribute__((ext_vector_type(8)));
+typedef int i8 __attribute__((ext_vector_type(8)));
+v8 Ox, Oy, Oz;
+__builtin_memcpy(&Ox, &ox, 32); __builtin_memcpy(&Oy, &oy, 32); __builtin_memcpy(&Oz, &oz, 32);
+const v8 Vx = Ox - p[0], Vy = Oy - p[1], Vz = Oz - p[2];
+const v8 ax = Vx < 0.0f ? -Vx : Vx, ay = Vy < 0.0f ? -Vy : Vy, az = Vz < 0.0f ? -Vz : Vz;
+const i8 fx = (ax >= ay) & (ax >= az);
+const i8 fy = ~fx & (ay >= az);
+const v8 m = fx ? ax : (fy ? ay : az);
+const v8 va = fx ? Vx : (fy ? Vy : Vz);
+const i8 ok = (((Vx * Vx + Vy * Vy) + Vz * Vz) <= reach * reach) & (m > 0.0f);
+const v8 ms = ok ? m : 1.0f;
+const v8 tu = ok ? (fx ? Vy : (fy ? Vz : Vx)) : 0.0f;
+const v8 tv = ok ? (fx ? Vz : (fy ? Vx : Vy)) : 0.0f;
+const i8 face = (fx ? 0 : (fy ? 2 : 4)) + (va < 0.0f ? 1 : 0);
+const float half = 0.5f * (float)n;
+i8 col = __builtin_convertvector((tu / ms + 1.0f) * half, i8);
+i8 row = __builtin_convertvector((tv / ms + 1.0f) * half, i8);
+col = col < n - 1 ? col : n - 1;
+row = row < n - 1 ? row : n - 1;
+const i8 cell = cell0 + (face * n + row) * n + col;
+__builtin_memcpy(&cells, &cell, 32);
+for (int l = 0; l < 8; ++l) res |= ((lanes >> l) & 1) && ok[l] ? 1 << l : 0;
+#else
+for (int l = 0; l < 8; ++l) {
+    if (!((lanes >> l) & 1)) continue;
+    const float vx = ox[l] - p[0], vy = oy[l] - p[1], vz = oz[l] - p[2];
+    const float ax = fabsf(vx), ay = fabsf(vy), az = fabsf(vz);
+    const bool fx = ax >= ay && ax >= az, fy = !fx && ay >= az;
+    const float m = fx ? ax : (fy ? ay : az);
+    if (!((vx * vx + vy * vy) + vz * vz <= reach * reach) || !(m > 0.0f)) continue;
+    const float va = fx ? vx : (fy ? vy : vz), tu = fx ? vy : (fy ? vz : vx), tv = fx ? vz : (fy ? vx : vy);
+    const int face = (fx ? 0 : (fy ? 2 : 4)) + (va < 0.0f ? 1 : 0);
+    const float half = 0.5f * (float)n;
+    int col = (int)((tu / m + 1.0f) * half), row = (int)((tv / m + 1.0f) * half);
+    col = col < n - 1 ? col : n - 1;
+    row = row < n - 1 ? row : n - 1;
+    cells[l] = cell0 + (face * n + row) * n + col;
+    res |= 1 << l;
+}
+#endif
+return res;
+"""
+
+
+@wp.func_native(_LIGHT_CELLS)
+def light_cells(p: wp.vec3, reach: float, n: int, cell0: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF,
+                cells: wp.ref[PacketI]) -> int:
+    """The lanes (of ``lanes``) within ``reach`` of a point light at p with a light buffer of n × n
+    cells a face from cell ``cell0``, each one's cell in ``cells`` (see above)."""
+    ...
+
+
 _PLANE_HITS_PACKET = r"""
 int res = 0;
 @PACKET_RAYS@
@@ -385,7 +448,13 @@ const float n0 = e1[1] * e2[2] - e1[2] * e2[1], n1 = e1[2] * e2[0] - e1[0] * e2[
 const float nn = (n0 * n0 + n1 * n1) + n2 * n2;
 @PACKET_RAYS@
 const v8 denom = (n0 * Dx + n1 * Dy) + n2 * Dz;
-const v8 t = ((n0 * (c[0] - Ox) + n1 * (c[1] - Oy)) + n2 * (c[2] - Oz)) / denom;
+const v8 num = (n0 * (c[0] - Ox) + n1 * (c[1] - Oy)) + n2 * (c[2] - Oz);
+// t > 0 needs num and denom of one sign: where no lane has that (a shadow ray leaving the
+// rectangle's plane, or on its far side), none meets it
+i8 lane_on;
+for (int l = 0; l < 8; ++l) lane_on[l] = (lanes >> l) & 1 ? -1 : 0;
+if (!__builtin_reduce_or(lane_on & (((num > 0.0f) & (denom > 0.0f)) | ((num < 0.0f) & (denom < 0.0f))))) return 0;
+const v8 t = num / denom;
 i8 hit = (denom != 0.0f) & (t > 0.0f) & (t < Tm);
 const v8 rx = (Ox + t * Dx) - c[0], ry = (Oy + t * Dy) - c[1], rz = (Oz + t * Dz) - c[2];
 // cross(rel, e2) and cross(e1, rel), each dotted with n, over n·n

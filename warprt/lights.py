@@ -533,7 +533,7 @@ def make_lights(F: Features) -> SimpleNamespace:
                     # ``occluded_packet``; without secondary rays nothing is transparent)
                     test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
                     shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
-                                           face, scene.alights[j].shape)
+                                           face, scene.alights[j].shape, -1)
                     # each lit lane's mul_sat(mul_sat(1, f), ip / π), the 8 at once
                     area_sums(go & ~shut, ip, fr, fg, fb, ar, ag, ab)
                 for k in range(lanes):
@@ -606,7 +606,7 @@ def make_lights(F: Features) -> SimpleNamespace:
             if go == 0:
                 continue
             blocked = occluded_packet(scene, lanes, go & (m >> 16), sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
-                                      face, -1)
+                                      face, -1, i)
             lit = go & ~blocked
             # each lit lane's mul_sat(1, mul_sat(I, f)), the 8 at once
             inv_sq = int(0)

@@ -207,6 +207,11 @@ class PointLightRec:
     pos: wp.vec3
     intensity: wp.vec3  # I
     inv_sq: int  # 1: inverse-square falloff; FALLOFF_DIRECTIONAL: a directional light (pos: unit vector towards it)
+    # its light buffer (accel.light_buffer; CPU only): the first of its 6 · lb_res² cells in
+    # SceneData.lb_cells (-1: none), and the farthest a shadow ray's origin may be to use it
+    lb_cell0: int
+    lb_res: int
+    lb_reach: float
 
 
 @wp.struct
@@ -245,6 +250,8 @@ class SceneData:
     mats: wp.array(dtype=MatRec)
     n_plights: int
     plights: wp.array(dtype=PointLightRec)
+    lb_cells: wp.array(dtype=int)  # the point lights' buffers: each cell's first entry in lb_items, then the end
+    lb_items: wp.array(dtype=int)  # the BVH primitives (their index in bvh_prims) a cell's directions may meet
     n_alights: int
     alights: wp.array(dtype=AreaLightRec)
     ambient: wp.vec3

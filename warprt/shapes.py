@@ -75,9 +75,9 @@ def _rect_bounds(row: dict) -> tuple[np.ndarray, np.ndarray]:
     return corners.min(axis=0), corners.max(axis=0)
 
 
-def rect_pieces(row: dict) -> list[tuple[np.ndarray, np.ndarray]]:
+def rect_pieces(row: dict, max_pieces: int = RECT_MAX_PIECES) -> list[tuple[np.ndarray, np.ndarray]]:
     """Boxes covering a rectangle in pieces along its longer edge, about as long as it is wide
-    (at most RECT_MAX_PIECES): one box around a long bar tilted off the axes is mostly empty, and
+    (at most ``max_pieces``): one box around a long bar tilted off the axes is mostly empty, and
     every ray through that emptiness would be tested against it. A ray may meet the rectangle
     through several of its pieces; the nearest-hit search does not mind (a hit replaces another
     only when strictly nearer), a transmittance walk would count the crossing once per piece, so
@@ -86,7 +86,7 @@ def rect_pieces(row: dict) -> list[tuple[np.ndarray, np.ndarray]]:
     l1, l2 = np.linalg.norm(e1), np.linalg.norm(e2)
     if l1 < l2:
         e1, e2, l1, l2 = e2, e1, l2, l1
-    k = int(min(RECT_MAX_PIECES, max(1, math.ceil(l1 / max(l2, 1e-30)))))
+    k = int(min(max_pieces, max(1, math.ceil(l1 / max(l2, 1e-30)))))
     edges = np.linspace(0.0, 1.0, k + 1)
     out = []
     for a0, a1 in zip(edges[:-1], edges[1:]):

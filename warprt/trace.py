@@ -27,7 +27,7 @@ from .accel import (
 )
 from ._warp import build_once
 from .geometry import (
-    SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk,
+    SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk, light_cells,
     intersect_plane, intersect_rect, intersect_sphere, max_abs, plane_hits_packet, plane_leaf_packet, quat_rotate_mag,
     ray_box, box_hits_packet, rect_hits_packet, rect_leaf_packet, refine_on_plane, refine_on_sphere, spawn_offset,
     sphere_hits_packet, sphere_leaf_packet, sphere_roots,
@@ -1252,10 +1252,37 @@ def make_trace(F: Features) -> SimpleNamespace:
             return -1
         return blocked | r
 
+    @wp.func(inline=True)
+    def leaf_blocks(scene: SceneData, n: int, kk: int, ii: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF,
+                    dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, own_rect: int) -> int:
+        """The lanes (of the bit mask ``lanes``, all below n) whose shadow ray (o, d) over (0, t_max)
+        the analytic BVH's primitive (kind kk, row ii) blocks (rectangle ``own_rect`` never)."""
+        hit = int(0)
+        if kk == KIND_SPHERE:
+            hit = sphere_packet(scene, ii, lanes, ox, oy, oz, dx, dy, dz, t_max, time)
+        elif kk == KIND_RECT:
+            if ii != own_rect:
+                hit = rect_hits_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, lanes, ox, oy, oz, dx,
+                                       dy, dz, t_max)
+        else:
+            for k in range(n):
+                if (lanes >> k) & 1 != 0:
+                    o = wp.vec3(ox[k], oy[k], oz[k])
+                    d = wp.vec3(dx[k], dy[k], dz[k])
+                    if kk >= KIND_BOX:
+                        if wp.static(F.solids):
+                            T = solid_crossings(scene, o, d, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d), t_max[k], time[k], kk,
+                                                ii)
+                            if wp.max(T) <= 0.0:
+                                hit = hit | (1 << k)
+                    elif bounded_hit(scene, o, d, 0.0, t_max[k], time[k], kk, ii) >= 0.0:
+                        hit = hit | (1 << k)
+        return hit
+
     @wp.func
     def occluded_packet(scene: SceneData, n: int, lanes: int, ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF,
                         dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, skip: PacketI,
-                        face: PacketI, own_rect: int) -> int:
+                        face: PacketI, own_rect: int, plight: int) -> int:
         """The lanes (of the bit mask ``lanes``, all below n) whose shadow ray (o, d) over (0, t_max)
         a surface blocks, in a kernel without transparent materials, where ``transmittance`` is 0
         or 1: the spheres (without the analytic BVH), planes and BVH for all lanes at once
@@ -1267,7 +1294,10 @@ def make_trace(F: Features) -> SimpleNamespace:
         escape horizons (``accel.escape_horizons``): where its ray passes them it cannot meet
         that instance's triangles, which are not tested for it (skip 0: none skipped). The rays
         end short of a point on rectangle ``own_rect`` (an area light's; -1: none), which they
-        meet nowhere else and which is not tested."""
+        meet nowhere else and which is not tested. With ``plight`` >= 0 they go to point light
+        ``plight``: where it has a light buffer (``accel.light_buffer``), the lanes within its
+        reach test the primitives of their cell instead of walking the BVH, the lanes of one cell
+        together; the answers are the walk's."""
         blocked = int(0)
         left = lanes
         use_bvh = scene.bvh_root >= 0
@@ -1283,8 +1313,38 @@ def make_trace(F: Features) -> SimpleNamespace:
             blocked = blocked | plane_hits_packet(scene.planes[i].p, scene.planes[i].n, left, ox, oy, oz, dx, dy, dz,
                                                   t_max)
             left = lanes & ~blocked
+        walk = int(0)  # the lanes that walk the BVH
         if use_bvh and left != 0:
-            # the BVH for all lanes still lit together: a node opened while any of them meets a
+            walk = left
+            if plight >= 0:
+                if scene.plights[plight].lb_cell0 >= 0:
+                    # the light buffer: each lane's cell's primitives (accel.light_buffer)
+                    rec = scene.plights[plight]
+                    cells = PacketI()
+                    todo = light_cells(rec.pos, rec.lb_reach, rec.lb_res, rec.lb_cell0, left, ox, oy, oz, cells)
+                    walk = left & ~todo
+                    while todo != 0:
+                        c = int(-1)
+                        same = int(0)
+                        for k in range(n):
+                            if (todo >> k) & 1 != 0:
+                                if c < 0:
+                                    c = cells[k]
+                                if cells[k] == c:
+                                    same = same | (1 << k)
+                        todo = todo & ~same
+                        e = scene.lb_cells[c]
+                        end = scene.lb_cells[c + 1]
+                        while e < end and same != 0:
+                            j = scene.lb_items[e]
+                            e += 1
+                            hit = leaf_blocks(scene, n, scene.bvh_prims[j][0], scene.bvh_prims[j][1], same, ox, oy, oz,
+                                              dx, dy, dz, t_max, time, own_rect)
+                            blocked = blocked | hit
+                            same = same & ~hit
+                    left = lanes & ~blocked
+        if walk != 0:
+            # the BVH for the lanes still lit together: a node opened while any of them meets a
             # child's box (with a blocked lane's length below every entry)
             inv_x = PacketF()
             inv_y = PacketF()
@@ -1295,7 +1355,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                 inv_x[k] = inv[0]
                 inv_y[k] = inv[1]
                 inv_z[k] = inv[2]
-                reach[k] = wp.where((left >> k) & 1 != 0, t_max[k], -PACKET_MISS)
+                reach[k] = wp.where((walk >> k) & 1 != 0, t_max[k], -PACKET_MISS)
             refs = StackRefs()
             refs[0] = scene.bvh_root
             sp = int(1)
@@ -1312,35 +1372,16 @@ def make_trace(F: Features) -> SimpleNamespace:
                         sp += 1
                     continue
                 j = -ref - 1
-                kk = scene.bvh_prims[j][0]
-                ii = scene.bvh_prims[j][1]
-                hit = int(0)
-                if kk == KIND_SPHERE:
-                    hit = sphere_packet(scene, ii, left, ox, oy, oz, dx, dy, dz, t_max, time)
-                elif kk == KIND_RECT:
-                    if ii != own_rect:
-                        hit = rect_hits_packet(scene.rects[ii].c, scene.rects[ii].e1, scene.rects[ii].e2, left, ox, oy,
-                                               oz, dx, dy, dz, t_max)
-                else:
-                    for k in range(n):
-                        if (left >> k) & 1 != 0:
-                            o = wp.vec3(ox[k], oy[k], oz[k])
-                            d = wp.vec3(dx[k], dy[k], dz[k])
-                            if kk >= KIND_BOX:
-                                if wp.static(F.solids):
-                                    T = solid_crossings(scene, o, d, wp.cw_div(wp.vec3(1.0, 1.0, 1.0), d), t_max[k],
-                                                        time[k], kk, ii)
-                                    if wp.max(T) <= 0.0:
-                                        hit = hit | (1 << k)
-                            elif bounded_hit(scene, o, d, 0.0, t_max[k], time[k], kk, ii) >= 0.0:
-                                hit = hit | (1 << k)
+                hit = leaf_blocks(scene, n, scene.bvh_prims[j][0], scene.bvh_prims[j][1], walk, ox, oy, oz, dx, dy, dz,
+                                  t_max, time, own_rect)
                 if hit != 0:
                     blocked = blocked | hit
-                    left = lanes & ~blocked
-                    if left == 0:
-                        return blocked
+                    walk = walk & ~hit
+                    if walk == 0:
+                        break
                     for k in range(PACKET):
-                        reach[k] = wp.where((left >> k) & 1 != 0, reach[k], -PACKET_MISS)
+                        reach[k] = wp.where((walk >> k) & 1 != 0, reach[k], -PACKET_MISS)
+            left = lanes & ~blocked
         if left == 0:
             return blocked
         if not use_bvh:

@@ -385,7 +385,7 @@ class BatchRenderer:
         # the film and the colour buffer of the whole batch, refused before anything is built
         check_memory(cam.width, W * C * cam.height, formats=(), film_on_host=dev.is_cpu)
         self.counters = {"rebuilds": 0, "compiles": 0, "host_transfers": 0}
-        self.built = DeviceScene(scene, dev)
+        self.built = DeviceScene(scene, dev, light_buffers=False)  # (the worlds pose their lights and shapes)
         self.counters["rebuilds"] += 1
         F = self.built.features
         if self.motion_blur:
