@@ -350,7 +350,6 @@ def sphere_hits_packet(c0: wp.vec3, dc: wp.vec3, moving: int, r: float, lanes: i
     ...
 
 
-
 # The cell of a point light's buffer (``accel.light_buffer``) holding the direction from the light
 # at p to each lane's origin, as an index into ``SceneData.lb_cells`` (the buffer's first cell
 # cell0, res² cells a face): the face of the direction's largest component (x over y over z where
@@ -449,8 +448,8 @@ const float nn = (n0 * n0 + n1 * n1) + n2 * n2;
 @PACKET_RAYS@
 const v8 denom = (n0 * Dx + n1 * Dy) + n2 * Dz;
 const v8 num = (n0 * (c[0] - Ox) + n1 * (c[1] - Oy)) + n2 * (c[2] - Oz);
-// t > 0 needs num and denom of one sign: where no lane has that (a shadow ray leaving the
-// rectangle's plane, or on its far side), none meets it
+// t > 0 needs num and denom of one sign: where no lane has that (no lane meets the plane ahead,
+// as a shadow ray leaving a surface on the light's side of it), none meets the rectangle
 i8 lane_on;
 for (int l = 0; l < 8; ++l) lane_on[l] = (lanes >> l) & 1 ? -1 : 0;
 if (!__builtin_reduce_or(lane_on & (((num > 0.0f) & (denom > 0.0f)) | ((num < 0.0f) & (denom < 0.0f))))) return 0;

@@ -1317,9 +1317,9 @@ def make_trace(F: Features) -> SimpleNamespace:
         if use_bvh and left != 0:
             walk = left
             if plight >= 0:
-                if scene.plights[plight].lb_cell0 >= 0:
+                rec = scene.plights[plight]
+                if rec.lb_cell0 >= 0:
                     # the light buffer: each lane's cell's primitives (accel.light_buffer)
-                    rec = scene.plights[plight]
                     cells = PacketI()
                     todo = light_cells(rec.pos, rec.lb_reach, rec.lb_res, rec.lb_cell0, left, ox, oy, oz, cells)
                     walk = left & ~todo
