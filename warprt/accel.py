@@ -423,8 +423,9 @@ def light_buffer(pos, lo: np.ndarray, hi: np.ndarray, ids: np.ndarray, res: int 
         return None
     cell_ids = np.concatenate(cell_ids)
     item = np.asarray(ids, dtype=np.int64)[np.concatenate(box_ids)]
-    key = np.unique(cell_ids * (int(item.max()) + 1) + item)  # one entry per (cell, id), sorted
-    cell_ids, item = key // (int(item.max()) + 1), key % (int(item.max()) + 1)
+    span = int(item.max()) + 1
+    key = np.unique(cell_ids * span + item)  # one entry per (cell, id), sorted
+    cell_ids, item = key // span, key % span
     if 6 * res * res + 1 + cell_ids.size > room:
         return None
     cells = np.zeros(6 * res * res + 1, dtype=np.int64)

@@ -343,16 +343,18 @@ class DeviceScene:
 
     def _light_buffers(self, d: SceneData, rows: dict[str, list[dict]], plights: list) -> list[dict]:
         """The point and directional lights' rows, with a light buffer (``accel.light_buffer``) for
-        each point light of a CPU scene with an analytic BVH (and ``light_buffers``) where one is
-        worth it, while the scene's buffers hold at most ``accel.LB_MAX_ITEMS`` cells and entries;
-        their arrays into ``d.lb_cells`` and ``d.lb_items``. A buffer boxes every shape of the BVH,
-        a rectangle in pieces about as long as it is wide (a long bar's one box fills cells far
-        beyond it), each box tagged with the shape's first primitive in ``bvh_prims``."""
+        each point light of a CPU scene with an analytic BVH and no secondary rays (and
+        ``light_buffers``) where one is worth it, while the scene's buffers hold at most
+        ``accel.LB_MAX_ITEMS`` cells and entries; their arrays into ``d.lb_cells`` and
+        ``d.lb_items``. A buffer boxes every shape of the BVH, a rectangle in pieces about as long
+        as it is wide (a long bar's one box fills cells far beyond it), each box tagged with the
+        shape's first primitive in ``bvh_prims``."""
         out = [dict(point_light_row(l), lb_cell0=-1, lb_res=0, lb_reach=0.0) for l in plights]
         cells, items = [], []
         room = accel.LB_MAX_ITEMS
-        if (self.light_buffers and wp.get_device(self.device).is_cpu and self.analytic_bvh is not None
-                and any(isinstance(l, PointLight) for l in plights)):
+        # (only camera packets' shading uses them: none in kernels with secondary rays)
+        if (self.light_buffers and not self.features.secondary and wp.get_device(self.device).is_cpu
+                and self.analytic_bvh is not None and any(isinstance(l, PointLight) for l in plights)):
             first = {}
             for j, (tag, row) in enumerate(self._bvh_leaves):
                 first.setdefault((int(tag), int(row)), j)
