@@ -6,6 +6,7 @@ converges to the same answer as one shadow ray per sample."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -102,16 +103,119 @@ def test_auto_is_chosen_once_and_the_same_for_any_workers_and_seed(device):
     assert r2.light_samples(workers=2) == n
     b = r2.render(spp=2, seed=3, workers=2, slices=5, progress=False).image
     assert a.tobytes() == b.tobytes()
-    # it is the fixed count's image
-    fixed = warprt.Renderer(_penumbra_scene(n), device=device).render(spp=2, seed=3, workers=1, progress=False)
-    assert fixed.image.tobytes() == a.tobytes()
+    assert np.array_equal(r2.light_map, r.light_map)
+    # it is the fixed counts' image: each block's pixels those of its count (one count: all of them)
+    counts = _pixel_counts(r.light_map, n, a.shape)
+    for k in np.unique(counts):
+        fixed = warprt.Renderer(_penumbra_scene(int(k)), device=device).render(spp=2, seed=3, workers=1, progress=False)
+        assert np.array_equal(fixed.image[counts == k], a[counts == k])
+
+
+def _pixel_counts(light_map, n, shape):
+    """Each pixel's count of shadow rays per camera sample under a split map (or n without one)."""
+    if light_map is None:
+        return np.full(shape[:2], n)
+    t = splitting.MAP_TILE
+    return np.repeat(np.repeat(light_map, t, 0), t, 1)[:shape[0], :shape[1]]
+
+
+@pytest.mark.parametrize("packets", [True, False])
+def test_a_split_map_gives_each_pixel_its_blocks_count(monkeypatch, packets):
+    """Under a split map every pixel is, bit for bit, the pixel of the render whose "auto" light
+    takes its block's count, with camera packets and one by one: with the renderer's blocks of
+    MAP_TILE pixels (a multiple of a packet's 8 lanes: a packet's lanes share a block) and with
+    blocks of 3 pixels, set by hand, whose packets at 3 spp take lanes from pixels of different
+    blocks. An adaptive render takes the one count throughout, and the next uniform render the
+    map again (the recorded launches see the scene's record as it is now)."""
+    counts = np.array([[1, 16, 2], [8, 4, 1]], np.int32)  # 40 × 24 pixels: partial blocks right and below
+    monkeypatch.setattr(splitting, "light_map", lambda *args, **kwargs: counts)
+    # (the kernel variants of scenes/soft_shadows.toml, which test_features renders both ways)
+    renderer = functools.partial(warprt.Renderer, device="cpu", packets=packets,
+                                 features=warprt.Features(meshes=True, area_lights=True, analytic_bvh=True))
+    r = renderer(_penumbra_scene("auto", width=40, height=24))
+    n = r.light_samples()
+    assert np.array_equal(r.light_map, counts)
+    r.render(spp=1, seed=0, progress=False)  # (timed: the next render is one pass)
+    fixed = {int(k): renderer(_penumbra_scene(int(k), width=40, height=24)).render(spp=3, seed=5, progress=False).image
+             for k in 2 ** np.arange(5)}
+    img = r.render(spp=3, seed=5, progress=False).image
+    per_pixel = _pixel_counts(counts, n, img.shape)
+    for k in np.unique(counts):
+        assert np.array_equal(fixed[k][per_pixel == k], img[per_pixel == k]), k
+    one = renderer(_penumbra_scene(n, width=40, height=24))
+    adaptive = r.render(spp=4, seed=5, progress=False, adaptive=True).image
+    assert adaptive.tobytes() == one.render(spp=4, seed=5, progress=False, adaptive=True).image.tobytes()
+    assert r.render(spp=3, seed=5, progress=False).image.tobytes() == img.tobytes()
+    with pytest.raises(warprt.RenderError, match=r"8 × 14 counts of 1 to 1024, got int32 \(8, 13\)"):
+        r.built.set_light_map(np.ones((8, 13), np.int32), 3)
+    with pytest.raises(warprt.RenderError, match="counts of 1 to 1024"):
+        r.built.set_light_map(np.zeros((8, 14), np.int32), 3)
+    # blocks of 3 pixels (14 × 8 of them), every count somewhere
+    small = 2 ** np.random.default_rng(2).integers(0, 5, size=(8, 14)).astype(np.int32)
+    r.built.set_light_map(small, 3)
+    img = r.render(spp=3, seed=5, progress=False).image
+    per_pixel = np.repeat(np.repeat(small, 3, 0), 3, 1)[:24, :40]
+    for k in np.unique(small):
+        assert np.array_equal(fixed[k][per_pixel == k], img[per_pixel == k]), k
+
+
+def test_tile_errors_sum_each_blocks_pilot_rows():
+    rng = np.random.default_rng(3)
+    width, height, tile = 37, 45, 16
+    rows = np.arange(4, height, 8)
+    a, b = rng.normal(size=(2, len(rows) * width))
+    got = splitting.tile_errors(a, b, rows, width, height, tile)
+    d2 = ((a - b) ** 2 / 2).reshape(len(rows), width)
+    assert got.shape == (3, 3)
+    for i in range(3):
+        for j in range(3):
+            mine = rows // tile == i
+            block_rows = min(tile, height - i * tile)
+            want = d2[mine][:, j * tile:(j + 1) * tile].sum() * block_rows / mine.sum()
+            assert got[i, j] == pytest.approx(want, rel=1e-12)
+
+
+def _objective(e_cam, e_light, pixels, n, cost_ratio=splitting.COST_RATIO, rate=splitting.RATE):
+    return float((e_cam + e_light * n ** -rate).sum() * (pixels * (cost_ratio + n)).sum() ** rate)
+
+
+def test_a_split_map_moves_shadow_rays_to_the_blocks_whose_noise_is_the_lights():
+    """Blocks alike get no map (one count does as well); a penumbra's blocks (light noise only)
+    get more shadow rays than the blocks of edges (camera noise only), which get 1; and the map's
+    cost in the model is below the best single count's and near the least over every map (brute
+    force over the 5^4 maps of 2 × 2 blocks: the sweep finds it)."""
+    w = h = 32
+    pixels = np.full((2, 2), 256.0)
+    same = np.full((2, 2), 1.0)
+    assert splitting.light_map(same, same * 0.5, w, h) is None
+    e_cam = np.array([[1.0, 0.0], [1.0, 0.0]])
+    e_light = np.array([[0.0, 4.0], [0.0, 4.0]])
+    p = splitting.PROBE ** -splitting.RATE
+    m = splitting.light_map(e_cam + e_light, e_cam + e_light * p, w, h)
+    assert m is not None and m.dtype == np.int32
+    assert (m[:, 0] == 1).all() and (m[:, 1] > 1).all()
+    rng = np.random.default_rng(7)
+    choices = 2 ** np.arange(5)
+    grids = np.stack(np.meshgrid(*[choices] * 4, indexing="ij"), -1).reshape(-1, 2, 2)
+    for _ in range(20):
+        e_cam, e_light = rng.exponential(size=(2, 2, 2)) * rng.uniform(0, 1, size=(2, 1, 1)) ** 3
+        m = splitting.light_map(e_cam + e_light, e_cam + e_light * p, w, h)
+        one = splitting.best_samples(e_cam.sum(), e_light.sum())
+        uniform = _objective(e_cam, e_light, pixels, np.full((2, 2), one))
+        least = min(_objective(e_cam, e_light, pixels, g) for g in grids)
+        if m is None:  # one count is within 1% of the best map
+            assert uniform * 0.99 <= least * (1 + 1e-12)
+            continue
+        got = _objective(e_cam, e_light, pixels, m)
+        assert got < 0.99 * uniform
+        assert got == pytest.approx(least, rel=1e-12)  # (2000 such draws: the sweep found the least in each)
 
 
 def test_the_light_rows_are_rewritten_only_when_the_count_changes():
     """Every render sets the "auto" lights' count; the table is written only when it changes
     (a row changed behind its back stays as it is until then)."""
     r = warprt.Renderer(_penumbra_scene("auto"), device="cpu")
-    r.render(spp=1, seed=0, progress=False)
+    r.render(spp=2, seed=0, progress=False, adaptive=True)  # (an adaptive render: no split map)
     n = r.light_samples()
     rows = r.built.data.alights.numpy()  # (a view of the CPU array)
     assert int(rows["samples"][0]) == n
@@ -120,7 +224,7 @@ def test_the_light_rows_are_rewritten_only_when_the_count_changes():
     assert int(r.built.data.alights.numpy()["samples"][0]) == 99
     r.built.set_auto_light_samples(n + 1)
     assert int(r.built.data.alights.numpy()["samples"][0]) == n + 1
-    r.render(spp=1, seed=0, progress=False)
+    r.render(spp=2, seed=0, progress=False, adaptive=True)
     assert int(r.built.data.alights.numpy()["samples"][0]) == n
     # a fresh table holds 1 until a count is set, whichever comes first
     for k in (1, 2, 3, 4, 8, 16):

@@ -21,7 +21,7 @@ import warp as wp
 from . import accel
 from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes, light_buffer
 from .camera import camera_data
-from .errors import SceneError
+from .errors import RenderError, SceneError
 from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
 from .records import (
     ANALYTIC_BVH_MIN, FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
@@ -156,7 +156,8 @@ class DeviceScene:
                                      frost=m.frosted_exponent, emit=le) for m, le in mats], dev)
         d.n_alights = len(alights)
         d.alights = table(AreaLightRec, alights, dev)
-        self._auto_samples = 1  # what the "auto" lights' rows hold (set_auto_light_samples)
+        self._auto_samples = 1  # what the "auto" lights' rows hold (set_auto_light_samples; 0: the map's)
+        self.set_light_map(None)
         d.ambient = wp.vec3(*scene.ambient)
         d.background = wp.vec3(*scene.background)
         self._analytic_bvh(d, rows, [m for m, _ in mats])
@@ -182,6 +183,29 @@ class DeviceScene:
                 rows["samples"][j] = n
         self.data.alights.assign(rows)
         self._auto_samples = n
+
+    def set_light_map(self, counts: np.ndarray | None, tile: int = 0) -> None:
+        """Give the "auto" lights a count of shadow rays per camera sample for each ``tile`` ×
+        ``tile`` block of the image (``counts``, rows of tiles, from ``warprt.splitting``), read by
+        the kernel from the pixel (their rows' samples become 0); None: no map (the rows' count)."""
+        d = self.data
+        if counts is None:
+            d.split_n = wp.zeros(1, dtype=int, device=self.device)
+            d.split_tile = 0
+            d.split_tx = 0
+            return
+        counts = np.asarray(counts)
+        cam = self.scene.camera
+        if tile < 1 or counts.shape != (-(-cam.height // tile), -(-cam.width // tile)) \
+                or not np.issubdtype(counts.dtype, np.integer) or counts.min() < 1 or counts.max() > 1024:
+            raise RenderError(f"a light map of {tile}-pixel blocks over {cam.width} × {cam.height} pixels needs "
+                              f"{-(-cam.height // tile)} × {-(-cam.width // tile)} counts of 1 to 1024, got "
+                              f"{counts.dtype} {counts.shape}")
+        counts = np.ascontiguousarray(counts, dtype=np.int32)
+        d.split_n = wp.array(counts.reshape(-1), dtype=int, device=self.device)
+        d.split_tile = int(tile)
+        d.split_tx = int(counts.shape[1])
+        self.set_auto_light_samples(0)
 
     def refresh_balls(self) -> None:
         """Give each mesh instance its asset's interior balls (``accel.interior_balls``) and normal

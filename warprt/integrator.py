@@ -36,7 +36,7 @@ from ._warp import build_once
 from .camera import camera_frame, camera_packet, camera_ray, lens_packet
 from .film import FilmData, claim_block, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
-from .lights import LightPacket, ShadePacket, make_lights
+from .lights import LightPacket, ShadePacket, make_lights, map_samples
 from .records import KIND_MESH, KIND_NONE, CameraData, Features, RenderParams, SceneData
 from .sampling import (
     SAMPLER_SOBOL, frame_from_z, hash2, pixel_key, sample_1d_keyed, sample_2d_keyed, sobol_packet, square_to_cos_power,
@@ -396,6 +396,13 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     sp_.key = keys
                     sp_.sample = idx
                     sp_.time = pk.time
+                    if wp.static(F.area_lights):
+                        if scene.split_tile > 0:  # each lane's pixel's count for "auto" lights
+                            for k in range(lanes):
+                                jj = p_j
+                                if mixed:
+                                    jj = lane_j[k]
+                                sp_.ns[k] = map_samples(scene, px0 + (jj >> sh), py + (jj & rm))
                     for k in range(lanes):
                         # (the lanes read in place: accel.lane)
                         o = wp.vec3(lane(pk.ox, k), lane(pk.oy, k), lane(pk.oz, k))
@@ -601,7 +608,8 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                             # "Features and compile cost")
                             if scene.n_alights > 0:
                                 al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
-                                                        scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time)
+                                                        scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time,
+                                                        map_samples(scene, px0 + (cur >> sh), py + (cur & rm)))
                                 rays += int(al[3])
                                 local += wp.vec3(al[0], al[1], al[2])
                         L += mul_sat(e.w, local)

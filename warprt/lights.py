@@ -59,6 +59,7 @@ class ShadePacket:
     time: PacketF
     key: PacketU
     sample: PacketI
+    ns: PacketI  # the lane's pixel's shadow rays per camera sample for "auto" lights (map_samples)
     glossy: int  # 1 when a lane's material has a specular colour (ks > 0); 0: every lobe is kd · n·l
 
 
@@ -372,6 +373,25 @@ def lobe_colour(sp: ShadePacket, k: int, nl: float, hl: float, nh: float) -> wp.
         spec = phong_power(nh, lane(sp.p_exp, k))
     return wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)) * nl + ks * spec
 
+@wp.func(inline=True)
+def map_samples(scene: SceneData, x: int, y: int) -> int:
+    """The shadow rays per camera sample that the split map (``DeviceScene.set_light_map``) gives
+    "auto" lights at raster pixel (x, y); 0 without a map."""
+    if scene.split_tile <= 0:
+        return 0
+    return scene.split_n[(y // scene.split_tile) * scene.split_tx + x // scene.split_tile]
+
+
+@wp.func(inline=True)
+def light_count(scene: SceneData, j: int, map_n: int) -> int:
+    """Area light j's shadow rays per camera sample: its row's, or where the row holds 0 (an
+    "auto" light under a split map) the pixel's ``map_n``."""
+    ns = scene.alights[j].samples
+    if ns == 0:
+        ns = wp.max(map_n, 1)
+    return ns
+
+
 @build_once
 def make_lights(F: Features) -> SimpleNamespace:
     """The direct-lighting device functions for one feature set (built once per process)."""
@@ -382,9 +402,10 @@ def make_lights(F: Features) -> SimpleNamespace:
     @wp.func(inline=True)
     def one_area_light(scene: SceneData, params: RenderParams, j: int, pkey: wp.uint32, sample: int,
                        key: wp.uint32, p: wp.vec3, origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3,
-                       kd: wp.vec3, ks: wp.vec3, p_exp: float, time: float) -> wp.vec4:
-        """Area light j's part of ``area_lights_direct`` (rgb, shadow rays used in w)."""
-        ns = scene.alights[j].samples
+                       kd: wp.vec3, ks: wp.vec3, p_exp: float, time: float, map_n: int) -> wp.vec4:
+        """Area light j's part of ``area_lights_direct`` (rgb, shadow rays used in w); ``map_n``:
+        the pixel's count for "auto" lights (``map_samples``)."""
+        ns = light_count(scene, j, map_n)
         acc = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         dim = hash2(key, wp.uint32(LIGHT_DIM_BASE + j))
@@ -417,14 +438,15 @@ def make_lights(F: Features) -> SimpleNamespace:
     @wp.func
     def area_lights_direct(scene: SceneData, params: RenderParams, pkey: wp.uint32, sample: int, key: wp.uint32,
                            p: wp.vec3, origin: wp.vec3, ng: wp.vec3, n: wp.vec3, v: wp.vec3, kd: wp.vec3, ks: wp.vec3,
-                           p_exp: float, time: float) -> wp.vec4:
+                           p_exp: float, time: float, map_n: int) -> wp.vec4:
         """Direct light from the area lights: ``samples`` stratified shadow rays per light (rgb,
         shadow rays used in w). ``pkey`` is the pixel's ``pixel_key``; ``ng``/``n`` are the
-        geometric/shading normals turned towards the viewer, ``v`` the direction to it."""
+        geometric/shading normals turned towards the viewer, ``v`` the direction to it; ``map_n``
+        the pixel's count for "auto" lights (``map_samples``)."""
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for j in range(scene.n_alights):
-            a = one_area_light(scene, params, j, pkey, sample, key, p, origin, ng, n, v, kd, ks, p_exp, time)
+            a = one_area_light(scene, params, j, pkey, sample, key, p, origin, ng, n, v, kd, ks, p_exp, time, map_n)
             L += wp.vec3(a[0], a[1], a[2])
             rays += int(a[3])
         return wp.vec4(L[0], L[1], L[2], float(rays))
@@ -467,96 +489,111 @@ def make_lights(F: Features) -> SimpleNamespace:
         hl = PacketF()
         nh = PacketF()
         for j in range(scene.n_alights):
-            ns = scene.alights[j].samples
-            dim = hash2(wp.uint32(ROOT_KEY), wp.uint32(LIGHT_DIM_BASE + j))
-            scalar = live
-            if scene.alights[j].kind == KIND_RECT:
-                rec = scene.rects[scene.alights[j].shape]
-                area = wp.length(wp.cross(rec.e1, rec.e2))
-                square = int(0)
-                if is_rectangle_edges(rec.e1, rec.e2):
-                    square = 1
-                stop = 2.0 * spawn_offset(max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2))
-                # the lanes' set-up once (the cosine warp's knots), then their ns draws from it
-                knots = RectKnots()
-                ready = rect_setup_packet(rec.c, rec.e1, rec.e2, rec.n, params.light_sampling, square, live, sp.px,
-                                          sp.py, sp.pz, sp.nx, sp.ny, sp.nz, knots)
-                scalar = ready >> 8
-                drawn = live & ~scalar
-                for k in range(PACKET):
-                    ar[k] = 0.0
-                    ag[k] = 0.0
-                    ab[k] = 0.0
-                split = is_split_order(params.sampler, ns)
-                draws = SplitDraws()
-                if split:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
-                    sobol_split_setup(sp.key, sp.sample, ns, dim, draws)
-                for s in range(ns):
-                    if split:
-                        sobol_split_draw(draws, ns, s, ux, uy)
-                    elif params.sampler == SAMPLER_SOBOL:
-                        idx = PacketI()
-                        for k in range(lanes):
-                            idx[k] = sp.sample[k] * ns + s
-                        sobol_packet(sp.key, idx, dim, ux, uy)  # the 8 lanes' points at once
-                    else:
-                        for k in range(lanes):
-                            if (live >> k) & 1 != 0:
-                                u = light_sample_2d(params.sampler, sp.key[k], lane_i(sp.sample, k), ns, s, params.spp,
-                                                    dim)
-                                ux[k] = u[0]
-                                uy[k] = u[1]
-                    m = rect_draw_packet(rec.c, rec.e1, rec.e2, rec.n, area, params.light_sampling, ready & 255, knots,
-                                         sp.px, sp.py, sp.pz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
-                    go = int(0)  # the lanes whose sample lights them if nothing is in the way
-                    # blinn_phong for the lanes: its geometry at once, then each lane's colour (all
-                    # lanes at once for Lambertian materials)
-                    m = lobe_packet(m & 255, l0, l1, l2, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz,
-                                    nl, hl, nh)
-                    if glossy == 0:
-                        go = diffuse_lanes(m, sp.kdr, sp.kdg, sp.kdb, nl, fr, fg, fb, out.rays)
-                    else:
-                        for k in range(lanes):
-                            if (m >> k) & 1 == 0:
-                                continue
-                            f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
-                            if wp.max(f) <= 0.0:
-                                continue
-                            lane_addi(out.rays, k, 1)
-                            fr[k] = f[0]
-                            fg[k] = f[1]
-                            fb[k] = f[2]
-                            go = go | (1 << k)
-                    if go == 0:
-                        continue
-                    # the shadow rays of the lanes together (``shadow``'s set-up, then
-                    # ``occluded_packet``; without secondary rays nothing is transparent)
-                    test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
-                    shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
-                                           face, scene.alights[j].shape, -1)
-                    # each lit lane's mul_sat(mul_sat(1, f), ip / π), the 8 at once
-                    area_sums(go & ~shut, ip, fr, fg, fb, ar, ag, ab)
+            todo = live
+            while todo != 0:
+                # the lanes with one count of shadow rays together (with a split map, an "auto" light's
+                # count is the lane's pixel's: the lanes of the first lane's count, then the others')
+                ns = scene.alights[j].samples
+                group = todo
+                if ns == 0:
+                    first = int(0)
+                    while (todo >> first) & 1 == 0:
+                        first += 1
+                    ns = light_count(scene, j, lane_i(sp.ns, first))
+                    group = int(0)
+                    for k in range(lanes):
+                        if (todo >> k) & 1 != 0 and light_count(scene, j, lane_i(sp.ns, k)) == ns:
+                            group = group | (1 << k)
+                todo = todo & ~group
+                dim = hash2(wp.uint32(ROOT_KEY), wp.uint32(LIGHT_DIM_BASE + j))
+                scalar = group
+                if scene.alights[j].kind == KIND_RECT:
+                    rec = scene.rects[scene.alights[j].shape]
+                    area = wp.length(wp.cross(rec.e1, rec.e2))
+                    square = int(0)
+                    if is_rectangle_edges(rec.e1, rec.e2):
+                        square = 1
+                    stop = 2.0 * spawn_offset(max_abs(rec.c) + max_abs(rec.e1) + max_abs(rec.e2))
+                    # the lanes' set-up once (the cosine warp's knots), then their ns draws from it
+                    knots = RectKnots()
+                    ready = rect_setup_packet(rec.c, rec.e1, rec.e2, rec.n, params.light_sampling, square, group, sp.px,
+                                              sp.py, sp.pz, sp.nx, sp.ny, sp.nz, knots)
+                    scalar = ready >> 8
+                    drawn = group & ~scalar
+                    for k in range(PACKET):
+                        ar[k] = 0.0
+                        ag[k] = 0.0
+                        ab[k] = 0.0
+                    split = is_split_order(params.sampler, ns)
+                    draws = SplitDraws()
+                    if split:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
+                        sobol_split_setup(sp.key, sp.sample, ns, dim, draws)
+                    for s in range(ns):
+                        if split:
+                            sobol_split_draw(draws, ns, s, ux, uy)
+                        elif params.sampler == SAMPLER_SOBOL:
+                            idx = PacketI()
+                            for k in range(lanes):
+                                idx[k] = sp.sample[k] * ns + s
+                            sobol_packet(sp.key, idx, dim, ux, uy)  # the 8 lanes' points at once
+                        else:
+                            for k in range(lanes):
+                                if (group >> k) & 1 != 0:
+                                    u = light_sample_2d(params.sampler, sp.key[k], lane_i(sp.sample, k), ns, s, params.spp,
+                                                        dim)
+                                    ux[k] = u[0]
+                                    uy[k] = u[1]
+                        m = rect_draw_packet(rec.c, rec.e1, rec.e2, rec.n, area, params.light_sampling, ready & 255, knots,
+                                             sp.px, sp.py, sp.pz, ux, uy, y0, y1, y2, l0, l1, l2, ip)
+                        go = int(0)  # the lanes whose sample lights them if nothing is in the way
+                        # blinn_phong for the lanes: its geometry at once, then each lane's colour (all
+                        # lanes at once for Lambertian materials)
+                        m = lobe_packet(m & 255, l0, l1, l2, sp.gx, sp.gy, sp.gz, sp.nx, sp.ny, sp.nz, sp.vx, sp.vy, sp.vz,
+                                        nl, hl, nh)
+                        if glossy == 0:
+                            go = diffuse_lanes(m, sp.kdr, sp.kdg, sp.kdb, nl, fr, fg, fb, out.rays)
+                        else:
+                            for k in range(lanes):
+                                if (m >> k) & 1 == 0:
+                                    continue
+                                f = lobe_colour(sp, k, nl[k], hl[k], nh[k])
+                                if wp.max(f) <= 0.0:
+                                    continue
+                                lane_addi(out.rays, k, 1)
+                                fr[k] = f[0]
+                                fg[k] = f[1]
+                                fb[k] = f[2]
+                                go = go | (1 << k)
+                        if go == 0:
+                            continue
+                        # the shadow rays of the lanes together (``shadow``'s set-up, then
+                        # ``occluded_packet``; without secondary rays nothing is transparent)
+                        test = shadow_rays_packet(go, sp.ox, sp.oy, sp.oz, y0, y1, y2, stop, sx, sy, sz, st)
+                        shut = occluded_packet(scene, lanes, test, sp.ox, sp.oy, sp.oz, sx, sy, sz, st, sp.time, skip,
+                                               face, scene.alights[j].shape, -1)
+                        # each lit lane's mul_sat(mul_sat(1, f), ip / π), the 8 at once
+                        area_sums(go & ~shut, ip, fr, fg, fb, ar, ag, ab)
+                    for k in range(lanes):
+                        if (drawn >> k) & 1 != 0:
+                            L = mul_sat(scene.alights[j].le, wp.vec3(lane(ar, k), lane(ag, k), lane(ab, k))) / float(ns)
+                            lane_add(out.r, k, L[0])
+                            lane_add(out.g, k, L[1])
+                            lane_add(out.b, k, L[2])
                 for k in range(lanes):
-                    if (drawn >> k) & 1 != 0:
-                        L = mul_sat(scene.alights[j].le, wp.vec3(lane(ar, k), lane(ag, k), lane(ab, k))) / float(ns)
-                        lane_add(out.r, k, L[0])
-                        lane_add(out.g, k, L[1])
-                        lane_add(out.b, k, L[2])
-            for k in range(lanes):
-                if (scalar >> k) & 1 != 0:
-                    q = one_area_light(scene, params, j, sp.key[k], lane_i(sp.sample, k), wp.uint32(ROOT_KEY),
-                                       wp.vec3(lane(sp.px, k), lane(sp.py, k), lane(sp.pz, k)),
-                                       wp.vec3(lane(sp.ox, k), lane(sp.oy, k), lane(sp.oz, k)),
-                                       wp.vec3(lane(sp.gx, k), lane(sp.gy, k), lane(sp.gz, k)),
-                                       wp.vec3(lane(sp.nx, k), lane(sp.ny, k), lane(sp.nz, k)),
-                                       wp.vec3(lane(sp.vx, k), lane(sp.vy, k), lane(sp.vz, k)),
-                                       wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)),
-                                       wp.vec3(lane(sp.ksr, k), lane(sp.ksg, k), lane(sp.ksb, k)), lane(sp.p_exp, k),
-                                       lane(sp.time, k))
-                    lane_add(out.r, k, q[0])
-                    lane_add(out.g, k, q[1])
-                    lane_add(out.b, k, q[2])
-                    lane_addi(out.rays, k, int(q[3]))
+                    if (scalar >> k) & 1 != 0:
+                        q = one_area_light(scene, params, j, sp.key[k], lane_i(sp.sample, k), wp.uint32(ROOT_KEY),
+                                           wp.vec3(lane(sp.px, k), lane(sp.py, k), lane(sp.pz, k)),
+                                           wp.vec3(lane(sp.ox, k), lane(sp.oy, k), lane(sp.oz, k)),
+                                           wp.vec3(lane(sp.gx, k), lane(sp.gy, k), lane(sp.gz, k)),
+                                           wp.vec3(lane(sp.nx, k), lane(sp.ny, k), lane(sp.nz, k)),
+                                           wp.vec3(lane(sp.vx, k), lane(sp.vy, k), lane(sp.vz, k)),
+                                           wp.vec3(lane(sp.kdr, k), lane(sp.kdg, k), lane(sp.kdb, k)),
+                                           wp.vec3(lane(sp.ksr, k), lane(sp.ksg, k), lane(sp.ksb, k)), lane(sp.p_exp, k),
+                                           lane(sp.time, k), lane_i(sp.ns, k))
+                        lane_add(out.r, k, q[0])
+                        lane_add(out.g, k, q[1])
+                        lane_add(out.b, k, q[2])
+                        lane_addi(out.rays, k, int(q[3]))
         return out
 
     @wp.func
