@@ -486,6 +486,10 @@ class WarprtSide:
         self.light_samples = {s: r.light_samples(THREADS) for s, r in self.renderers.items()
                               if r.light_samples(THREADS) is not None}
         self.split_pilot_s = time.perf_counter() - t0
+        # and the split map its uniform renders take (blocks per count), where it has one
+        self.light_maps = {s: {int(k): int(v) for k, v in zip(*np.unique(r.light_map, return_counts=True))}
+                           for s, r in self.renderers.items()
+                           if "adaptive" not in s and r.light_samples(THREADS) and r.light_map is not None}
 
     def render(self, sampler: str, spp: int, seed: int):
         """(image, wall seconds, spp rendered, CPU seconds of the whole process)."""
@@ -659,12 +663,13 @@ def study_scene(key: str, mi, dr, args, log) -> dict:
     ws = WarprtSide(scene)
     ms = MitsubaSide(scene, mi, dr, emitter_samples=ws.light_samples.get("sobol+split"))
     rec["setup"] = {"warprt_build_s": ws.build_s, "warprt_compile_s": ws.compile_s, "mitsuba_load_s": ms.build_s,
-                    "warprt_light_samples": ws.light_samples, "warprt_split_pilot_s": ws.split_pilot_s}
+                    "warprt_light_samples": ws.light_samples, "warprt_light_maps": ws.light_maps,
+                    "warprt_split_pilot_s": ws.split_pilot_s}
     log(f"  set-up: warprt build {ws.build_s:.2f} s + kernel load/compile {ws.compile_s:.2f} s; "
         f"mitsuba load_dict {ms.build_s:.2f} s ({len(ms.samplers)} samplers)")
     if any(ws.light_samples.values()):
         log(f"  warprt light samples per camera sample (samples = \"auto\"): {ws.light_samples}, "
-            f"pilots {ws.split_pilot_s:.2f} s in all")
+            f"pilots {ws.split_pilot_s:.2f} s in all; split maps (uniform renders; blocks per count): {ws.light_maps}")
 
     # 1. reference (Mitsuba) and convergence of warprt to it
     t_ref = time.perf_counter()
