@@ -254,7 +254,7 @@ class SceneData:
     lb_items: wp.array(dtype=int)  # the BVH primitives (their index in bvh_prims) a cell's directions may meet
     n_alights: int
     alights: wp.array(dtype=AreaLightRec)  # an "auto" light's samples 0: its count from split_n
-    split_n: wp.array(dtype=int)  # the shadow rays per camera sample of each tile of the image (light_map_samples)
+    split_n: wp.array(dtype=int)  # each image block's count for "auto" lights (lights.map_samples)
     split_tile: int  # the tiles' size in pixels; 0: no map
     split_tx: int  # tiles across the image
     ambient: wp.vec3

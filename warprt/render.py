@@ -350,7 +350,7 @@ class Renderer:
     def _use_light_map(self, on: bool) -> None:
         """The "auto" lights' counts for the next launches: the split map where there is one and
         ``on`` (uniform renders), else the one count. Adaptive renders take the one count: their
-        samples already go where the noise is, and with the map as well (e) took 1.07x the time
+        samples already go where the noise is, and with the map as well (e) took 1.07-1.18x the time
         to its error (docs/benchmarks.md, levers)."""
         if on and self._light_map is not None:
             if self.built.data.split_tile == 0:

@@ -113,7 +113,7 @@ def tile_errors(mean_a: np.ndarray, mean_b: np.ndarray, rows: np.ndarray, width:
     """``pixel_error`` per tile × tile block (rows of blocks), from two renders' means of the
     pilot ``rows`` (each a full row of ``width`` pixels, in ``rows``' order), each block's sum
     scaled from its pilot rows to all of its rows."""
-    d = np.asarray(mean_a, np.float64).reshape(len(rows), width) - np.asarray(mean_b, np.float64).reshape(len(rows), width)
+    d = (np.asarray(mean_a, np.float64) - np.asarray(mean_b, np.float64)).reshape(len(rows), width)
     ty, tx = -(-height // tile), -(-width // tile)
     e = np.zeros((ty, tx))
     seen = np.zeros(ty)
