@@ -383,6 +383,7 @@ def light_buffer(pos, lo: np.ndarray, hi: np.ndarray, ids: np.ndarray, res: int 
         return None
     cell_ids, box_ids = [], []
     total = 0
+    cell = lambda t: np.clip(np.floor((t + 1.0) * 0.5 * res), 0, res - 1).astype(np.int64)  # a tangent's bin
     for f in range(6):
         a, s = f // 2, 1.0 if f % 2 == 0 else -1.0
         b, c = (a + 1) % 3, (a + 2) % 3
@@ -404,7 +405,6 @@ def light_buffer(pos, lo: np.ndarray, hi: np.ndarray, ids: np.ndarray, res: int 
             ranges.append((np.maximum(t_lo, -1.0), np.minimum(t_hi, 1.0)))
         (u0, u1), (v0, v1) = ranges
         seen = (u1 >= -1.0) & (u0 <= 1.0) & (v1 >= -1.0) & (v0 <= 1.0)
-        cell = lambda t: np.clip(np.floor((t + 1.0) * 0.5 * res), 0, res - 1).astype(np.int64)
         i0, i1, k0, k1 = cell(u0[seen]), cell(u1[seen]), cell(v0[seen]), cell(v1[seen])
         boxes = on[seen]
         nu, nv = i1 - i0 + 1, k1 - k0 + 1

@@ -343,7 +343,8 @@ class Renderer:
             rate = 1.0 if self.scene.render.sampler == "independent" else splitting.RATE
             e_cam, e_light = splitting.error_split(*errors, rate=rate)
             self._light_samples = splitting.best_samples(e_cam, e_light, self.built.auto_lights, rate=rate)
-            self._light_map = splitting.light_map(*tiles, cam.width, cam.height, self.built.auto_lights, rate=rate)
+            self._light_map = splitting.light_map(*tiles, cam.width, cam.height, self.built.auto_lights, rate=rate,
+                                                  one=self._light_samples)
             self._use_light_map(False)  # (the rows hold the one count; a uniform render sets the map)
         return self._light_samples
 

@@ -127,11 +127,11 @@ def tile_errors(mean_a: np.ndarray, mean_b: np.ndarray, rows: np.ndarray, width:
 
 def light_map(e_one: np.ndarray, e_probe: np.ndarray, width: int, height: int, n_lights: int = 1,
               tile: int = MAP_TILE, probe: int = PROBE, cost_ratio: float = COST_RATIO,
-              rate: float = RATE) -> np.ndarray | None:
+              rate: float = RATE, one: int | None = None) -> np.ndarray | None:
     """Each block's shadow rays per camera sample (rows of blocks, powers of two up to
     MAX_SAMPLES) from the blocks' errors with 1 and ``probe`` light samples (``tile_errors``), as
-    described above; None where one count for the whole image does as well (the model's cost
-    within 1%), and then ``best_samples`` of the sums is the count."""
+    described above; None where the one count for the whole image, ``one`` (the renderer's;
+    default ``best_samples`` of the blocks' sums), does as well (the model's cost within 1%)."""
     e_one = np.asarray(e_one, np.float64)
     e_probe = np.asarray(e_probe, np.float64)
     e_light = np.maximum(e_one - e_probe, 0.0) / (1.0 - probe ** -rate)
@@ -148,8 +148,9 @@ def light_map(e_one: np.ndarray, e_probe: np.ndarray, width: int, height: int, n
         c = np.take_along_axis(cost, pick[None], 0).sum()
         return float(e * c ** rate)
 
-    one = int(np.log2(best_samples(float(e_cam.sum()), float(e_light.sum()), n_lights, cost_ratio, rate)))
-    best_pick = np.full((ty, tx), one)
+    if one is None:
+        one = best_samples(float(e_cam.sum()), float(e_light.sum()), n_lights, cost_ratio, rate)
+    best_pick = np.full((ty, tx), int(np.log2(one)))
     best = uniform = objective(best_pick)
     # λ from the blocks' own break points (where two neighbouring counts cost a block the same)
     de = err[:-1] - err[1:]
