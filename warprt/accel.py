@@ -1468,8 +1468,9 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
 # ``point_lights_packet``'s ``skip`` and ``face``, ``trace.occluded_packet``). Escaping faces
 # (above) are horizons of zero. The bounds cost about 17 us a face (2 cores), so meshes of more
 # than HORIZON_MAX_TRIANGLES keep the escaping faces alone: on peer scene (d)'s 328k-triangle
-# torus the bounds pass 69% of the light-facing rays and save 8-18% of a render, for 17 s of
-# build (docs/benchmarks.md, levers).
+# torus the bounds pass 69% of the light-facing rays, which saved 8-18% of a render before the
+# shadow packets and normal cones and 0.97-1.03x since, for 11-14 s of build (docs/benchmarks.md,
+# levers).
 #
 # The bounds (``horizon_kernel``, C++ in double over the CPU tree copy, once per asset): for a
 # part of the mesh (a node's box, or a triangle), the top of its box along A over its distance
