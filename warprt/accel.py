@@ -1469,7 +1469,7 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
 # (above) are horizons of zero. The bounds cost about 17 us a face (2 cores), so meshes of more
 # than HORIZON_MAX_TRIANGLES keep the escaping faces alone: on peer scene (d)'s 328k-triangle
 # torus the bounds pass 69% of the light-facing rays, which saved 8-18% of a render before the
-# shadow packets and normal cones and 0.97-1.03x since, for 11-14 s of build (docs/benchmarks.md,
+# shadow packets and normal cones and 0.97-1.02x since, for 11-14 s of build (docs/benchmarks.md,
 # levers).
 #
 # The bounds (``horizon_kernel``, C++ in double over the CPU tree copy, once per asset): for a
