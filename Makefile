@@ -31,8 +31,11 @@ test: $(STAMP)
 mutate: $(STAMP)
 	$(PY) -m tests.mutate $(MUTATE_ARGS)
 
+# speed, accuracy and compile cost, then the side by side with Mitsuba 3 where the `peers` extra
+# is installed (without it benchmarks.peers says so in one line and skips)
 bench: $(STAMP)
 	$(PY) -m benchmarks.run
+	$(PY) -m benchmarks.peers $(PEERS_ARGS)
 
 # warprt against Mitsuba 3 (the optional `peers` extra); Mitsuba's fast llvm_ad_rgb variant also
 # needs the LLVM shared library (e.g. apt-get install libllvm19), else it falls back to scalar_rgb
