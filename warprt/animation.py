@@ -24,8 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .errors import FramesInterrupted, RenderError
-from .image import check_output, save_image
+from .errors import FramesInterrupted, RenderError, WriteError, frame_list
+from .image import check_output, save_image_or_fallback
 from .render import Renderer, check_seed
 from .scene.description import SOLID_TYPES, Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform, interpolate_rotation, rotation_keys
@@ -127,8 +127,21 @@ def keep_frame(output: str | None, frame: int, image, spp: int):
     folder = os.path.dirname(path)
     if folder:
         os.makedirs(folder, exist_ok=True)
-    save_image(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
+    save_image_or_fallback(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
     return path
+
+
+def frame_write_failed(e: WriteError, frame: int, frames: list, done: list) -> WriteError:
+    """A frame's failed write (the frame itself went to the temporary folder, see
+    ``image.save_image_or_fallback``) as one line that also says which frames were written and
+    which were not rendered."""
+    rest = [f for f in frames if f not in done and f != frame]
+    text = f"frame {frame}: {e}"
+    if done:
+        text += f"; frames {frame_list(done)} were written"
+    if rest:
+        text += f"; frames {frame_list(rest)} were not rendered"
+    return WriteError(text, e.path, e.free, e.fallback)
 
 
 def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: int | None = None, seed: int = 0,
@@ -142,7 +155,10 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
     written nor returned (a partial frame under the normal name would slip into a video), the
     frames after it are not rendered, and :class:`warprt.errors.FramesInterrupted` (a
     ``KeyboardInterrupt``) is raised, listing the complete frames (``.frames``) with their images
-    or paths (``.results``); those frames are already written.
+    or paths (``.results``); those frames are already written. A frame that cannot be written (a
+    full disk, quota or I/O error) is written to the temporary folder instead and the sequence
+    stops with a :class:`warprt.errors.WriteError` saying where it went and which frames were
+    written.
     """
     from .render import _CtrlC
 
@@ -177,12 +193,16 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
                     cut_short.append(f)
                     raise KeyboardInterrupt
                 image = {"color": result.image, **result.aovs} if aovs else result.image
-                out.append(keep_frame(output, f, image, result.spp))
+                try:
+                    out.append(keep_frame(output, f, image, result.spp))
+                except WriteError as e:  # a full disk: the sequence stops (the next frames would fail too)
+                    raise frame_write_failed(e, f, frames, done) from None
                 done.append(f)
                 if bar is not None:
                     bar.update(1)
     except KeyboardInterrupt:
-        raise FramesInterrupted(done, out, cut_short, total=len(frames)) from None
+        not_started = [f for f in frames if f not in done and f not in cut_short]
+        raise FramesInterrupted(done, out, cut_short, total=len(frames), not_started=not_started) from None
     finally:
         if bar is not None:
             bar.close()
