@@ -503,12 +503,19 @@ def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     png = tmp_path / "partial.png"
     png.write_bytes(b"the previous complete image")
     env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
     proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out), "-o", str(png),
-                             "--spp", "1048576", "--no-progress"], env=env,  # the spp limit, 2^20
+                             "--spp", "1048576"], env=env,  # the spp limit, 2^20; with a progress bar
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)  # import, load the kernel, render a few passes
+    # the progress bar shows half a second into the render, whatever the import and load took
+    from test_faults import progress_reader, wait_for
+
+    seen = progress_reader(proc)
+    wait_for(proc, lambda: "spp" in "".join(seen), "the progress bar")
+    sent = time.monotonic()
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
+    assert time.monotonic() - sent < 5.0  # within a pass (about half a second) and the writes
     assert proc.returncode == 130, stderr
     _, header = warprt.read_exr(out)
     assert 1 <= int(header["warprt_spp"]) < 1048576 and int(header["warprt_interrupted"]) == 1
