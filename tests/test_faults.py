@@ -371,3 +371,264 @@ def test_cache_damage_tells_a_whole_entry_from_a_damaged_one(tmp_path):
         assert words in cache_damage(str(entry_copy), obj, meta), kind
     (good / meta).write_text("[]")
     assert "no module metadata" in cache_damage(str(good), obj, meta)
+
+
+# --- full disks -------------------------------------------------------------------------------------------
+
+
+def fail_writes_under(monkeypatch, folder: pathlib.Path, err: int = 28) -> None:
+    """Writes of images into ``folder`` fail as a full disk does (ENOSPC from the writer, after
+    part of the file is written); writes elsewhere (the fallback) succeed."""
+    real = image_module._atomic_write
+
+    def write(path, writer):
+        if pathlib.Path(path).resolve().is_relative_to(folder.resolve()):
+            def full(tmp):
+                with open(tmp, "wb") as f:
+                    f.write(b"part of an image")
+                raise OSError(err, os.strerror(err))
+
+            return real(path, full)
+        return real(path, writer)
+
+    monkeypatch.setattr(image_module, "_atomic_write", write)
+
+
+@pytest.fixture
+def temp_folder(tmp_path, monkeypatch) -> pathlib.Path:
+    """The system's temporary folder, for this test: where a full disk's images go."""
+    import tempfile
+
+    folder = tmp_path / "systemp"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(folder))
+    return folder
+
+
+@pytest.mark.parametrize("err, words", [(28, "No space left on device"), (122, "Disk quota exceeded"),
+                                        (5, "Input/output error")])
+def test_a_full_disk_is_one_line_exit_2_and_the_image_goes_to_the_temp_folder(basic, tmp_path, capsys, monkeypatch,
+                                                                             temp_folder, err, words):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    (disk / "img.exr").write_bytes(b"the previous image")
+    fail_writes_under(monkeypatch, disk, err)
+    status, out, stderr = run_cli(["render", basic, "-o", disk / "img.exr", "--spp", "2", "--no-progress"], capsys)
+    assert status == 2
+    [line] = stderr.splitlines()
+    fallback = next(temp_folder.glob("img.*.exr"))
+    free = image_module.size_text(image_module.free_bytes(str(disk)))
+    assert line == (f"warprt: error: {disk / 'img.exr'}: cannot be written: {words} ({free} free on its disk); "
+                    f"the image was written to {fallback} instead")
+    rgb, header = warprt.read_exr(fallback)
+    np.testing.assert_array_equal(rgb, warprt.render(warprt.load_scene(basic), spp=2, progress=False))
+    assert header["warprt_spp"] == 2
+    assert (disk / "img.exr").read_bytes() == b"the previous image" and leftovers(tmp_path) == []
+    assert out == ""
+
+
+def test_an_output_on_a_full_disk_does_not_stop_the_others(basic, tmp_path, capsys, monkeypatch, temp_folder):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    fail_writes_under(monkeypatch, disk)
+    status, out, stderr = run_cli(["render", basic, "-o", disk / "a.exr", "-o", tmp_path / "a.png", "--no-progress"],
+                                  capsys)
+    assert status == 2 and len(stderr.splitlines()) == 1 and str(disk / "a.exr") in stderr
+    complete_image(tmp_path / "a.png", 1)
+    assert out.startswith(f"{tmp_path / 'a.png'}: 64x48")
+
+
+def test_when_the_temp_folder_is_full_too_the_line_says_so(tmp_path, monkeypatch, temp_folder):
+    fail_writes_under(monkeypatch, tmp_path)  # (the temporary folder is inside it)
+    with pytest.raises(warprt.errors.WriteError) as info:
+        image_module.save_image_or_fallback(np.zeros((2, 2, 3), np.float32), tmp_path / "a.png")
+    assert "the image could not be written to" in str(info.value) and info.value.fallback is None
+    assert list(temp_folder.iterdir()) == []
+
+
+def test_outputs_that_cannot_fit_are_refused_before_rendering(basic, tmp_path, capsys, monkeypatch):
+    """Like memory: the largest size the files can take (no compression) against the space free
+    on their disk, checked before the scene is built."""
+    monkeypatch.setattr(image_module, "free_bytes", lambda folder: 100_000)
+    built = []
+    monkeypatch.setattr(importlib.import_module("warprt.render").Renderer, "__init__",
+                        lambda self, *a, **k: built.append(1))
+    exr, png = tmp_path / "a.exr", tmp_path / "a.png"
+    status, out, stderr = run_cli(["render", basic, "-o", exr, "-o", png, "--width", 200, "--height", 100], capsys)
+    need = image_module.estimate_file_bytes("a.exr", 200, 100) + image_module.estimate_file_bytes("a.png", 200, 100)
+    assert status == 2 and not built
+    assert stderr.splitlines() == [f"warprt: error: {exr}, {png}: need up to {image_module.size_text(need)} of disk "
+                                   "space, but only 100.0 kB is free there; free some space or write elsewhere"]
+    assert image_module.estimate_file_bytes("a.exr", 200, 100, aov_channels=4) == int(
+        (12 + 16) * 200 * 100 * 1.01) + 64 * 1024
+    # a sequence: every frame counted
+    (tmp_path / "anim.toml").write_text(BASIC + "[animation]\nframes = 8\n")
+    status, out, stderr = run_cli(["render-sequence", tmp_path / "anim.toml", "-o", tmp_path / "f_#.png",
+                                   "--width", 100, "--height", 100], capsys)
+    assert status == 2 and "f_0.png, " in stderr and "f_7.png: need up to" in stderr and not built
+
+
+def test_a_sequence_on_a_full_disk_stops_with_one_line_naming_the_frames(tmp_path, capsys, monkeypatch, temp_folder):
+    (tmp_path / "anim.toml").write_text(BASIC.replace("64", "16").replace("48", "12") + "[animation]\nframes = 4\n")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    real = image_module._atomic_write
+
+    def write(path, writer):  # frame 1 does not fit
+        def full(tmp):
+            raise OSError(28, os.strerror(28))
+
+        return real(path, full if path == str(disk / "f_1.png") else writer)
+
+    monkeypatch.setattr(image_module, "_atomic_write", write)
+    status, out, stderr = run_cli(["render-sequence", tmp_path / "anim.toml", "-o", disk / "f_#.png",
+                                   "--no-progress"], capsys)
+    assert status == 2
+    [line] = stderr.splitlines()
+    fallback = next(temp_folder.glob("f_1.*.png"))
+    assert line.startswith(f"warprt: error: frame 1: {disk / 'f_1.png'}: cannot be written: No space left on device (")
+    assert line.endswith(f"the image was written to {fallback} instead; frame 0 was written; "
+                         "frames 2-3 were not rendered")
+    assert sorted(p.name for p in disk.iterdir()) == ["f_0.png"]
+
+
+UNSHARE_DRIVER = r'''
+import json, os, subprocess, sys, time
+scene, disk = sys.argv[1], sys.argv[2]
+subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", disk], check=True)
+cmd = [sys.executable, "-m", "warprt", "render", scene]
+out = {}
+p = subprocess.run(cmd + ["-o", disk + "/big.exr", "--width", "1024", "--height", "768", "--no-progress"],
+                   capture_output=True, text=True)
+out["refused"] = [p.returncode, p.stdout, p.stderr]
+proc = subprocess.Popen(cmd + ["-o", disk + "/img.exr", "--width", "256", "--height", "192", "--spp", "1048576",
+                               "--time-budget", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+seen = ""
+while "spp" not in seen:  # the progress bar: the render has begun, the free space was checked
+    c = proc.stderr.read(1)
+    if not c:
+        break
+    seen += c
+with open(disk + "/filler", "wb") as f:  # another writer fills the disk
+    try:
+        while True:
+            f.write(b"\0" * 65536)
+            f.flush()
+    except OSError:
+        pass
+stdout, stderr = proc.communicate()
+out["filled"] = [proc.returncode, stdout, stderr.replace("\r", "\n")]
+print(json.dumps(out))
+'''
+
+
+def unshare_available() -> bool:
+    if not sys.platform.startswith("linux") or not shutil.which("unshare") or not shutil.which("mount"):
+        return False
+    probe = subprocess.run(["unshare", "--user", "--map-root-user", "--mount", "sh", "-c",
+                            "d=$(mktemp -d) && mount -t tmpfs -o size=64k tmpfs $d && umount $d && rmdir $d"],
+                           capture_output=True, timeout=30)
+    return probe.returncode == 0
+
+
+@pytest.mark.skipif(not unshare_available(), reason="needs unshare and mount (a tmpfs in a user namespace)")
+def test_a_real_full_tmpfs(basic, tmp_path):
+    """A 2 MB tmpfs (in a user namespace: no root needed): a 1024x768 EXR is refused before
+    rendering; a 256x192 one fits when checked, then another writer fills the disk during the
+    render: one line, exit 2, and the image, in the temporary folder, is the one its header
+    says how to reproduce."""
+    import tempfile
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    before = set(pathlib.Path(tempfile.gettempdir()).glob("img.*.exr"))
+    p = subprocess.run(["unshare", "--user", "--map-root-user", "--mount", sys.executable, "-c", UNSHARE_DRIVER,
+                        str(basic), str(disk)], cwd=tmp_path, env=env_for(), capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr
+    result = json.loads(p.stdout)
+    code, out, err = result["refused"]
+    assert code == 2 and err.splitlines() == [
+        f"warprt: error: {disk}/big.exr: needs up to 9.6 MB of disk space, but only 2.1 MB is free there; "
+        "free some space or write elsewhere"]
+    code, out, err = result["filled"]
+    lines = [x for x in err.splitlines() if x.startswith("warprt")]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"warprt: error: {disk}/img.exr: cannot be written: No space left on device (")
+    [fallback] = set(pathlib.Path(tempfile.gettempdir()).glob("img.*.exr")) - before
+    try:
+        assert lines[0].endswith(f"; the image was written to {fallback} instead")
+        rgb, header = warprt.read_exr(fallback)
+        assert header["warprt_stopped_by"] == "time_budget"
+        again = warprt.Renderer(warprt.load_scene(basic).with_camera(width=256, height=192)).render(
+            spp=header["warprt_spp"], planned_spp=header["warprt_planned_spp"], seed=header["warprt_seed"],
+            progress=False)
+        assert rgb.tobytes() == again.image.tobytes()
+    finally:
+        fallback.unlink()
+
+
+# --- a stopped image says what reproduces it ----------------------------------------------------------------
+
+
+class StopAfter:
+    """A ``stop`` event set after ``n`` passes (how Ctrl-C reaches a render)."""
+
+    def __init__(self, n: int):
+        self.n, self.calls = n, 0
+
+    def is_set(self) -> bool:
+        self.calls += 1
+        return self.calls >= self.n
+
+
+SAMPLERS = ["regular", "independent", "stratified", "sobol"]
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_an_image_stopped_early_is_reproduced_bit_for_bit_from_what_it_records(basic, sampler):
+    """A render of a 64-sample pattern stopped after 5 samples (passes 1 + 2 + 2) holds the first
+    5 samples of that pattern: render(spp=5, planned_spp=64) gives the same bits, in one pass or
+    another split, and its record says so. (Without planned_spp the strata of a 5-sample pattern
+    differ, for the samplers that lay their samples out for the count.)"""
+    renderer = warprt.Renderer(warprt.load_scene(basic).with_settings(sampler=sampler, spp=64))
+    stopped = renderer.render(pass_spp=2, stop=StopAfter(3), progress=False)
+    assert (stopped.spp, stopped.planned_spp, stopped.passes, stopped.stopped_by) == (5, 64, (1, 2, 2), "interrupt")
+    meta = stopped.reproduction()
+    assert meta["warprt_reproduce"] == f"--spp 5 --planned-spp 64 --seed 0 --sampler {sampler}"
+    assert (meta["warprt_passes"], meta["warprt_sampler"], meta["warprt_planned_spp"]) == ("1+2+2", sampler, 64)
+    for pass_spp in (None, 3):
+        again = renderer.render(spp=5, planned_spp=64, pass_spp=pass_spp, progress=False)
+        assert again.image.tobytes() == stopped.image.tobytes() and again.stopped_by is None
+    fresh = renderer.render(spp=5, progress=False)
+    assert (fresh.image.tobytes() == stopped.image.tobytes()) == (sampler in ("independent", "sobol"))
+
+
+@pytest.mark.parametrize("sampler", SAMPLERS)
+def test_the_cli_reproduces_a_time_budget_image_from_its_header(basic, tmp_path, capsys, sampler):
+    a, b = tmp_path / "budget.exr", tmp_path / "again.exr"
+    status, out, err = run_cli(["render", basic, "-o", a, "--spp", 1 << 20, "--time-budget", 0.3, "--sampler", sampler,
+                                "--seed", 7, "--no-progress"], capsys)
+    assert status == 0, err
+    rgb, header = warprt.read_exr(a)
+    assert header["warprt_stopped_by"] == "time_budget" and header["warprt_planned_spp"] == 1 << 20
+    assert 1 <= header["warprt_spp"] < 1 << 20
+    assert sum(int(x) for x in header["warprt_passes"].split("+")) == header["warprt_spp"]
+    args = header["warprt_reproduce"].split()
+    assert args == ["--spp", str(header["warprt_spp"]), "--planned-spp", str(1 << 20), "--seed", "7",
+                    "--sampler", sampler]
+    status, out, err = run_cli(["render", basic, "-o", b, *args, "--no-progress"], capsys)
+    assert status == 0, err
+    again, header2 = warprt.read_exr(b)
+    assert again.tobytes() == rgb.tobytes() and "warprt_stopped_by" not in header2
+
+
+def test_planned_spp_is_checked(basic, capsys, tmp_path):
+    renderer = warprt.Renderer(warprt.load_scene(basic))
+    for bad in (2, 0, True, 2.5, (1 << 20) + 1):
+        with pytest.raises(warprt.RenderError, match="planned_spp"):
+            renderer.render(spp=4, planned_spp=bad, progress=False)
+    with pytest.raises(warprt.RenderError, match="adaptive"):
+        renderer.render(spp=4, planned_spp=8, adaptive=True, progress=False)
+    status, out, err = run_cli(["render", basic, "-o", tmp_path / "a.png", "--spp", 8, "--planned-spp", 4], capsys)
+    assert status == 2 and "--planned-spp (4) must be at least --spp (8)" in err

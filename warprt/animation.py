@@ -131,6 +131,10 @@ def keep_frame(output: str | None, frame: int, image, spp: int):
     return path
 
 
+def _frames_were(frames: list) -> str:
+    return f"frame {frames[0]} was" if len(frames) == 1 else f"frames {frame_list(frames)} were"
+
+
 def frame_write_failed(e: WriteError, frame: int, frames: list, done: list) -> WriteError:
     """A frame's failed write (the frame itself went to the temporary folder, see
     ``image.save_image_or_fallback``) as one line that also says which frames were written and
@@ -138,9 +142,9 @@ def frame_write_failed(e: WriteError, frame: int, frames: list, done: list) -> W
     rest = [f for f in frames if f not in done and f != frame]
     text = f"frame {frame}: {e}"
     if done:
-        text += f"; frames {frame_list(done)} were written"
+        text += f"; {_frames_were(done)} written"
     if rest:
-        text += f"; frames {frame_list(rest)} were not rendered"
+        text += f"; {_frames_were(rest)} not rendered"
     return WriteError(text, e.path, e.free, e.fallback)
 
 
