@@ -206,6 +206,17 @@ def test_mesh_points_from_numpy_or_warp_refit_without_rebuild(n_faces):
         renderer.set_mesh_points(0, v[:2])
     with pytest.raises(warprt.RenderError, match="finite"):
         renderer.set_mesh_points(0, np.full_like(v, np.nan))
+    # a simulation's array is checked on the device: the first bad vertex named
+    bad = v.astype(np.float32)
+    bad[-1, 1] = np.inf
+    with pytest.raises(warprt.RenderError, match=rf"^points\[{len(v) - 1}\]: position \(.*inf.*\) is not finite"):
+        renderer.set_mesh_points(0, wp.array(bad, dtype=wp.vec3, device=renderer.device))
+    for points, words in (("abc", "points must be"), (None, "points must be"), ([["a", "b", "c"]], "numbers")):
+        with pytest.raises(warprt.RenderError, match=words):
+            renderer.set_mesh_points(0, points)
+    for index in ("abc", 1, -1, 0.0, True):
+        with pytest.raises(warprt.RenderError, match=r"shape_index must be an index into scene.shapes \(0 to 0\)"):
+            renderer.set_mesh_points(index, v)
 
 
 def test_camera_and_lights_change_between_frames():

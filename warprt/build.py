@@ -302,6 +302,9 @@ class DeviceScene:
     def set_mesh_points(self, shape_index: int, points) -> None:
         """Move the vertices of the mesh asset behind ``scene.shapes[shape_index]`` (every
         instance of that asset follows) and refit its BVH; smooth normals are recomputed."""
+        n = len(self.shape_ids)
+        if isinstance(shape_index, bool) or not isinstance(shape_index, (int, np.integer)) or not 0 <= shape_index < n:
+            raise RenderError(f"shape_index must be an index into scene.shapes (0 to {n - 1}), got {shape_index!r}")
         kind, row = self.shape_ids[shape_index]
         if kind != KIND_MESH:
             raise SceneError(f"shape {shape_index} is not a mesh", f"shapes[{shape_index}]")
