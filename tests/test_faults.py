@@ -677,3 +677,94 @@ def test_planned_spp_is_checked(basic, capsys, tmp_path):
         renderer.render(spp=4, planned_spp=8, adaptive=True, progress=False)
     status, out, err = run_cli(["render", basic, "-o", tmp_path / "a.png", "--spp", 8, "--planned-spp", 4], capsys)
     assert status == 2 and "--planned-spp (4) must be at least --spp (8)" in err
+
+
+# --- every public function names the argument it refuses -----------------------------------------------------
+
+
+def _api_calls():
+    from warprt.animation import render_sequence
+    from warprt.batch import render_frames
+    from warprt.query import pixel_samples, pixel_samples_1d
+
+    scene = warprt.scene_from_string(BASIC.replace("64", "8").replace("48", "6"))
+    animated = warprt.scene_from_string(BASIC.replace("64", "8").replace("48", "6") + "[animation]\nframes = 2\n")
+    renderer = warprt.Renderer(scene, device="cpu")
+    return {
+        "camera_rays (N, 3) points": (lambda: warprt.camera_rays(scene, np.zeros((4, 3))),
+                                      "points: expected raster points (x, y) in pixels shaped (N, 2), got shape (4, 3)"),
+        "camera_rays NaN points": (lambda: warprt.camera_rays(scene, [[1, 1], [np.nan, 1]]),
+                                   "points[1]: (nan, 1.0) is not finite"),
+        "camera_rays text points": (lambda: warprt.camera_rays(scene, "abc"), "points: expected raster points"),
+        "camera_rays lens count": (lambda: warprt.camera_rays(scene, np.zeros((4, 2)), lens=np.zeros((3, 2))),
+                                   "lens: 3 samples for 4 points"),
+        "camera_rays lens range": (lambda: warprt.camera_rays(scene, [[0, 0]], lens=[[2, 0]]),
+                                   "lens[0]: (2.0, 0.0) is outside [0, 1]^2"),
+        "camera_rays time": (lambda: warprt.camera_rays(scene, time=np.nan), "time must be finite"),
+        "camera_rays scene": (lambda: warprt.camera_rays(None), "camera_rays expects a warprt.Scene or Renderer"),
+        "trace_rays (N, 6)": (lambda: warprt.trace_rays(scene, np.zeros((2, 6)), np.ones((2, 6))),
+                              "origins: expected ray origins (x, y, z) shaped (N, 3), got shape (2, 6)"),
+        "trace_rays zero direction": (lambda: warprt.trace_rays(scene, np.zeros((2, 3)), [[0, 0, 1], [0, 0, 0]]),
+                                      "directions[1]: every direction must be non-zero"),
+        "trace_rays t_min": (lambda: warprt.trace_rays(scene, [0, 0, 5], [0, 0, -1], t_min=-1), "t_min must be >= 0"),
+        "trace_rays t_max": (lambda: warprt.trace_rays(scene, [0, 0, 5], [0, 0, -1], t_min=2, t_max=1),
+                             "t_max (1) must exceed t_min (2)"),
+        "trace_rays t_max text": (lambda: warprt.trace_rays(scene, [0, 0, 5], [0, 0, -1], t_max="far"),
+                                  "t_max must be a number"),
+        "trace_rays scene": (lambda: warprt.trace_rays(3, [0, 0, 5], [0, 0, -1]), "trace_rays expects a warprt.Scene"),
+        "pixel_samples spp": (lambda: pixel_samples("sobol", [0], 0), "spp must be an integer from 1"),
+        "pixel_samples pixels": (lambda: pixel_samples("sobol", [0.5], 4), "pixels: expected a 1-D list of integer"),
+        "pixel_samples count": (lambda: pixel_samples("sobol", [0], 4, count=-1), "count must be an integer from 1"),
+        "pixel_samples_1d dim": (lambda: pixel_samples_1d("sobol", [0], 4, dim="x"), "dim must be an integer"),
+        "save_image path": (lambda: warprt.save_image(np.zeros((2, 2, 3)), 5), "expected an image path"),
+        "save_image metadata": (lambda: warprt.save_image(np.zeros((2, 2, 3)), "x.png", metadata=[1]),
+                                "x.png: metadata must be a dict"),
+        "read_exr missing": (lambda: warprt.read_exr("missing.exr"), "missing.exr: cannot be read (No such file"),
+        "read_exr not an EXR": (lambda: warprt.read_exr(__file__), f"{__file__}: not an OpenEXR file"),
+        "Scene(shapes=Sphere())": (lambda: warprt.Scene(shapes=warprt.Sphere()),
+                                   "shapes: expected a list of shapes, got one Sphere (write shapes=[Sphere(...)])"),
+        "Scene(lights=PointLight())": (lambda: warprt.Scene(lights=warprt.PointLight()),
+                                       "lights: expected a list of lights, got one PointLight"),
+        "Scene(shapes=None)": (lambda: warprt.Scene(shapes=None), "shapes: expected a list of shapes, got NoneType"),
+        "Scene(materials=[...])": (lambda: warprt.Scene(materials=[warprt.Material()]),
+                                   "materials: expected a dict of name: Material, got list"),
+        "load_scene(123)": (lambda: warprt.load_scene(123), "load_scene expects a file path"),
+        "scene_from_string(path)": (lambda: warprt.scene_from_string(pathlib.Path("a.toml")),
+                                    "scene_from_string expects TOML text (a str), got PosixPath; for a file use load_scene"),
+        "Renderer features": (lambda: warprt.Renderer(scene, features="full"), "features must be a warprt.Features"),
+        "Renderer.set_camera": (lambda: renderer.set_camera("camera"), "set_camera() needs a warprt.Camera, got str"),
+        "Renderer.render time_budget": (lambda: renderer.render(time_budget="1"), "time_budget must be a positive number"),
+        "Renderer.render stop": (lambda: renderer.render(stop=True), "stop must be an event with is_set()"),
+        "Renderer.set_mesh_points index": (lambda: renderer.set_mesh_points(0, np.zeros((3, 3))),
+                                           "shape 0 is not a mesh"),
+        "render_sequence scene": (lambda: render_sequence(None), "expected a warprt.Scene, got NoneType"),
+        "render_sequence frames": (lambda: render_sequence(animated, frames="01"), "frames: expected a list or range"),
+        "render_sequence output": (lambda: render_sequence(animated, output=5), "output: expected a path pattern"),
+        "render_frames max_workers": (lambda: render_frames(animated, executor="thread", max_workers="2"),
+                                      "max_workers must be a positive integer"),
+        "BatchRenderer motion_blur": (lambda: warprt.BatchRenderer(scene, motion_blur="yes"),
+                                      "motion_blur must be True or False"),
+        "BatchRenderer.set_shape_poses('abc')": (lambda: warprt.BatchRenderer(scene).set_shape_poses("abc"),
+                                                 "shape_poses: expected poses shaped (1, 1, 7)"),
+        "BatchRenderer.render aovs": (lambda: warprt.BatchRenderer(scene).render(aovs=5),
+                                      "aovs: expected a list of AOV names"),
+        "check_output": (lambda: warprt.check_output(5), "expected an image path (str or os.PathLike), got int"),
+    }
+
+
+def test_every_public_function_refuses_bad_arrays_and_values_by_name(tmp_path, monkeypatch):
+    """A bad argument to any public function is a SceneError or RenderError whose message names
+    the argument (and the index, for arrays), never a bare TypeError, ValueError or
+    AttributeError from NumPy or Warp, nor silently reinterpreted memory."""
+    monkeypatch.chdir(tmp_path)
+    failures = []
+    for call, (fn, words) in _api_calls().items():
+        try:
+            fn()
+            failures.append(f"{call}: accepted")
+        except (warprt.SceneError, warprt.RenderError) as e:
+            if words not in str(e):
+                failures.append(f"{call}: {type(e).__name__}: {e!s} (expected {words!r})")
+        except Exception as e:  # noqa: BLE001 (what the test is about)
+            failures.append(f"{call}: bare {type(e).__name__}: {e}")
+    assert not failures, "\n".join(failures)

@@ -97,6 +97,13 @@ def frame_path(pattern: str, frame: int) -> str:
     return f"{root}_{frame:04d}{ext}"
 
 
+def check_pattern(output) -> str:
+    """An output pattern must be a path (str or os.PathLike)."""
+    if not isinstance(output, (str, os.PathLike)):
+        raise RenderError(f"output: expected a path pattern such as 'out/frame_####.png', got {output!r:.60}")
+    return os.fspath(output)
+
+
 def frame_seed(seed: int, frame: int) -> int:
     """Each frame gets its own noise (seed + frame), the same wherever the frame is rendered."""
     return (int(seed) + int(frame)) & 0xFFFFFFFF
@@ -105,7 +112,11 @@ def frame_seed(seed: int, frame: int) -> int:
 def check_frames(scene: Scene, frames=None, name: str = "frames") -> list[int]:
     """The frame numbers to render (default: all of them), each an integer in [0, animation.frames):
     a frame past the animation's end is an error, not a silent render of the last pose."""
+    if not isinstance(scene, Scene):
+        raise RenderError(f"expected a warprt.Scene, got {type(scene).__name__}")
     n = scene.animation.frames
+    if frames is not None and (isinstance(frames, (str, bytes)) or not hasattr(frames, "__iter__")):
+        raise RenderError(f"{name}: expected a list or range of frame numbers, got {frames!r:.60}")
     frames = list(range(n)) if frames is None else list(frames)
     if not frames:
         raise RenderError(f"{name}: no frames to render")
@@ -169,6 +180,7 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
     frames = check_frames(scene, frames)
     check_seed(seed)
     if output is not None:
+        check_pattern(output)
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     renderer = None
     done, out = [], []

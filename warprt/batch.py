@@ -29,7 +29,7 @@ import os
 import threading
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 
-from .animation import check_frames, frame_path, frame_scene, frame_seed, frame_write_failed, keep_frame, render_sequence
+from .animation import check_frames, check_pattern, frame_path, frame_scene, frame_seed, frame_write_failed, keep_frame, render_sequence
 from .errors import FramesInterrupted, RenderError, WriteError
 from .image import check_output
 from .render import Renderer, _CtrlC, check_seed
@@ -90,7 +90,11 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
                                progress=False)
     frames = check_frames(scene, frames)
     check_seed(seed)
+    for name, value in (("max_workers", max_workers), ("render_workers", render_workers)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise RenderError(f"{name} must be a positive integer, got {value!r:.60}")
     if output is not None:
+        check_pattern(output)
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     if executor == "ray":
         if not ray_available():

@@ -36,6 +36,7 @@ from .errors import RenderError, WriteError
 from .signals import Deferred
 
 FORMATS = (".exr", ".png")
+EXR_MAGIC = b"\x76\x2f\x31\x01"  # the first four bytes of every OpenEXR file
 
 
 def _check_image(image) -> np.ndarray:
@@ -94,7 +95,7 @@ def check_output(path: str | os.PathLike, create_folders: bool = False) -> str:
     extension, not a folder, and a folder where a file can be created (with ``create_folders``, a
     missing folder is fine when it could be created under its nearest existing parent). Raises
     :class:`RenderError` with one line naming ``path`` and the problem; returns ``path``."""
-    path = os.fspath(path)
+    path = _check_path(path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
@@ -331,8 +332,16 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
         _save_image(image, path, metadata)
 
 
+def _check_path(path, what: str = "an image path") -> str:
+    if not isinstance(path, (str, os.PathLike)):
+        raise RenderError(f"expected {what} (str or os.PathLike), got {type(path).__name__}")
+    return os.fspath(path)
+
+
 def _save_image(image, path, metadata) -> None:
-    path = os.fspath(path)
+    path = _check_path(path)
+    if metadata is not None and not isinstance(metadata, Mapping):
+        raise RenderError(f"{path}: metadata must be a dict of name: value, got {type(metadata).__name__}")
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
@@ -428,9 +437,22 @@ def read_exr(path: str | os.PathLike, layers: bool = False):
     the same names, shapes and dtypes as ``render(..., aovs=...)`` returns)."""
     import OpenEXR
 
-    with OpenEXR.File(os.fspath(path), separate_channels=True) as f:
-        header = dict(f.header())
-        ch = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    path = _check_path(path, "an EXR file path")
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except OSError as e:
+        raise RenderError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if magic != EXR_MAGIC:  # (checked here: OpenEXR would print its own error line as well)
+        raise RenderError(f"{path}: not an OpenEXR file")
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            header = dict(f.header())
+            ch = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    except RuntimeError as e:
+        raise RenderError(f"{path}: cannot be read as an OpenEXR image ({e})") from None
+    if not all(c in ch for c in "RGB"):
+        raise RenderError(f"{path}: holds no R, G, B channels (channels: {', '.join(sorted(ch))})")
     rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], axis=-1)
     if not layers:
         return rgb, header

@@ -250,6 +250,10 @@ class Renderer:
             raise RenderError(f"render() needs a warprt.Scene, got {type(scene).__name__}")
         if packets is not None and not isinstance(packets, bool):
             raise RenderError(f"packets must be True, False or None (the device's choice), got {packets!r}")
+        if features is not None and not isinstance(features, Features):
+            raise RenderError(f"features must be a warprt.Features (e.g. Features.full()), got {features!r:.60}")
+        if device is not None and not isinstance(device, str) and not hasattr(device, "is_cpu"):
+            raise RenderError(f"device must be a name such as 'cpu' or 'cuda:0', got {device!r:.60}")
         self.device = _warp.resolve_device(device)
         #: camera rays in packets (the CPU's default) or one by one (CUDA's): the same images
         self.packets = packets_for(self.device) if packets is None else packets
@@ -287,6 +291,10 @@ class Renderer:
 
     def set_camera(self, camera) -> None:
         """Replace the camera (same or different resolution); no rebuild of anything else."""
+        from .scene.description import Camera
+
+        if not isinstance(camera, Camera):
+            raise RenderError(f"set_camera() needs a warprt.Camera, got {type(camera).__name__}")
         self.scene = self.scene.replace(camera=camera)
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
@@ -449,10 +457,14 @@ class Renderer:
         check_seed(seed)
         if slices is not None and (isinstance(slices, bool) or not isinstance(slices, (int, np.integer)) or slices < 1):
             raise RenderError(f"slices must be a positive integer, got {slices!r}")
-        if time_budget is not None and not (time_budget > 0):
-            raise RenderError(f"time_budget must be positive seconds, got {time_budget!r}")
-        if target_error is not None and not (target_error > 0):
-            raise RenderError(f"target_error must be positive, got {target_error!r}")
+        for name, value in (("time_budget", time_budget), ("target_error", target_error)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
+                                                                                           np.floating))
+                                      or not value > 0):
+                raise RenderError(f"{name} must be a positive number{' of seconds' if name == 'time_budget' else ''}, "
+                                  f"got {value!r}")
+        if stop is not None and not callable(getattr(stop, "is_set", None)):
+            raise RenderError(f"stop must be an event with is_set() (e.g. threading.Event), got {stop!r:.60}")
         if pass_spp is not None and (not isinstance(pass_spp, (int, np.integer)) or pass_spp < 1):
             raise RenderError(f"pass_spp must be a positive integer, got {pass_spp!r}")
         if planned_spp is not None:

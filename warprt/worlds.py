@@ -373,6 +373,9 @@ class BatchRenderer:
             raise RenderError(f"BatchRenderer needs a warprt.Scene, got {type(scene).__name__}")
         if features is not None and not isinstance(features, Features):
             raise RenderError(f"features must be a warprt.Features, got {type(features).__name__}")
+        for name, value in (("motion_blur", motion_blur), ("check_inputs", check_inputs)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise RenderError(f"{name} must be True or False, got {value!r:.60}")
         #: check the pose arrays, light positions and fields of view on the device before each
         #: render (warprt.checks); False once a pipeline trusts what it writes there
         self.check_inputs = bool(check_inputs)

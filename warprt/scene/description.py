@@ -811,8 +811,16 @@ class Scene:
         for name, cls in (("camera", Camera), ("render", RenderSettings), ("animation", Animation)):
             if not isinstance(getattr(self, name), cls):
                 raise SceneError(f"expected a {cls.__name__}, got {type(getattr(self, name)).__name__}", name)
-        set_field(self, "shapes", tuple(self.shapes))
-        set_field(self, "lights", tuple(self.lights))
+        for name, kinds in (("shapes", SHAPE_TYPES), ("lights", LIGHT_TYPES)):
+            value = getattr(self, name)
+            if isinstance(value, tuple(kinds.values())):
+                raise SceneError(f"expected a list of {name}, got one {type(value).__name__} (write "
+                                 f"{name}=[{type(value).__name__}(...)])", name)
+            if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, (Sequence, np.ndarray)):
+                raise SceneError(f"expected a list of {name}, got {type(value).__name__}", name)
+            set_field(self, name, tuple(value))
+        if not isinstance(self.materials, Mapping):
+            raise SceneError(f"expected a dict of name: Material, got {type(self.materials).__name__}", "materials")
         mats = dict(self.materials)
         for key, m in mats.items():
             if not isinstance(key, str) or not key:
