@@ -267,9 +267,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status. ``argv`` None: the process's own arguments,
-    and the process exits next, so SIGINT and SIGTERM are ignored once the work is over (nothing
-    of the exit can be interrupted into a traceback); with ``argv`` the previous handlers come
-    back."""
+    and the process exits here once the work is over (see :func:`_leave`), SIGINT and SIGTERM
+    ignored from then on (nothing of the exit can be interrupted into a traceback); with ``argv``
+    the previous handlers come back and the status is returned."""
     from .signals import program, signal_name
 
     with program(ignore_after=argv is None) as run:
@@ -277,18 +277,35 @@ def main(argv: list[str] | None = None) -> int:
             args = build_parser().parse_args(argv)
             with warnings.catch_warnings():
                 warnings.showwarning = _show_warning
-                return _main(args, run)
+                code = _main(args, run)
         except KeyboardInterrupt:  # e.g. while Warp or the scene was loading, or a kernel compiled
             print("warprt: interrupted" + (f" ({signal_name(run.first)})" if run.first not in (None, 2) else ""),
                   file=sys.stderr)
             code = run.exit_code()
-            if argv is None and "warprt._warp" in sys.modules and sys.modules["warprt._warp"].abandoned_compiles():
-                # a compile is still running in its thread (warprt._warp): leave at once, without
-                # waiting for it (its build folder is removed)
-                sys.stdout.flush()
-                sys.stderr.flush()
-                os._exit(code)
-            return code
+    if argv is None:
+        _leave(code)
+    return code
+
+
+def _leave(code: int) -> None:
+    """End the process now, with ``code``, once the outputs are written and the streams flushed:
+    the interpreter's normal teardown unloads Warp's runtime and modules, which takes about a
+    second (the time a Ctrl-C would otherwise wait after the work had stopped), and a compile the
+    command stopped waiting for (``warprt._warp.abandoned_compiles``, its build folder removed)
+    would be waited for or torn down under it. Not where Ray was started (its own exit handler
+    stops the local cluster)."""
+    warp_side = sys.modules.get("warprt._warp")
+    if warp_side is not None:
+        warp_side.abandoned_compiles()
+    ray = sys.modules.get("ray")
+    if ray is not None and getattr(ray, "is_initialized", lambda: False)():
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 def _main(args: argparse.Namespace, run) -> int:
