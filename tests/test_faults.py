@@ -305,6 +305,38 @@ def test_ctrl_c_during_a_compile_stops_at_once_in_one_line_and_leaves_no_build_f
     assert not glob.glob(str(folder / f"*_p{proc.pid}_t*")) and not (tmp_path / "a.png").exists()
 
 
+COMPILE_THEN_WAIT = """
+import sys, time
+import numpy as np
+import warp as wp
+import warprt
+from warprt.checks import check_points
+warprt._warp.init()
+try:
+    check_points(wp.array(np.zeros((2, 3), np.float32), dtype=wp.vec3))  # compiles warprt_checks
+    print("compiled", flush=True)
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+"""
+
+
+@POSIX
+def test_ctrl_c_during_a_compile_in_the_python_api_leaves_no_build_folder(tmp_path):
+    """In a script (Python's default SIGINT handler) the KeyboardInterrupt comes when Warp's
+    native compile returns, between the build and the rename into the cache: the build folder
+    Warp leaves there is removed (warprt._warp._load), and nothing half-built enters the cache."""
+    cache = private_cache(tmp_path, "wp_warprt_checks")
+    folder = warp_cache_dir(cache)
+    proc = subprocess.Popen([sys.executable, "-c", COMPILE_THEN_WAIT], cwd=tmp_path, env=env_for(cache),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_for(proc, lambda: bool(glob.glob(str(folder / f"wp_warprt_checks*_p{proc.pid}_t*"))), "the build folder")
+    proc.send_signal(signal.SIGINT)
+    status, stdout, stderr = finish(proc)
+    assert status == 0 and stdout.strip() == "interrupted", stdout + stderr
+    assert not glob.glob(str(folder / f"*_p{proc.pid}_t*"))
+    assert not [e for e in folder.glob("wp_warprt_checks_*") if not e.is_symlink()]
+
+
 # --- damaged kernel cache -------------------------------------------------------------------------------
 
 
@@ -768,3 +800,18 @@ def test_every_public_function_refuses_bad_arrays_and_values_by_name(tmp_path, m
         except Exception as e:  # noqa: BLE001 (what the test is about)
             failures.append(f"{call}: bare {type(e).__name__}: {e}")
     assert not failures, "\n".join(failures)
+
+
+# --- the signal fuzzer, small -----------------------------------------------------------------------------------
+
+
+@POSIX
+def test_the_signal_fuzzer_runs_and_its_trials_hold(capsys):
+    """Three trials of ``make fuzz-signals`` (which runs 100): a render's passes, a large write
+    and a sequence, each signalled at a random moment, must hold (see tests/fuzz_signals.py)."""
+    from fuzz_signals import main as fuzz
+
+    status = fuzz(["--trials", "3", "--kinds", "render,write,sequence", "--no-calibrate", "--seed", "5"])
+    out = capsys.readouterr().out
+    assert status == 0, out
+    assert "3 trials, 3 held, 0 failed" in out
