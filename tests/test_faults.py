@@ -33,6 +33,16 @@ BASIC = '[camera]\nwidth = 64\nheight = 48\n[[shapes]]\ntype = "sphere"\n[[light
 image_module = importlib.import_module("warprt.image")
 
 
+@pytest.fixture(autouse=True)
+def default_sigint():
+    """Python's own SIGINT handler for each test (a run started in the background, as by a
+    non-interactive shell, inherits SIGINT ignored), the one found put back after."""
+    before = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
 @pytest.fixture
 def basic(tmp_path) -> pathlib.Path:
     path = tmp_path / "basic.toml"
@@ -306,7 +316,8 @@ def test_ctrl_c_during_a_compile_stops_at_once_in_one_line_and_leaves_no_build_f
 
 
 COMPILE_THEN_WAIT = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)  # (a script's own; a background run inherits it ignored)
 import numpy as np
 import warp as wp
 import warprt
