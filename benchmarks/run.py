@@ -437,9 +437,12 @@ def bench_input_checks(rows, quick: bool, pairs: int = 15):
                      + C, "render_ms_checked": 1e3 * statistics.median(on), "render_ms_unchecked": 1e3 * frame,
                      "check_ms": 1e3 * statistics.median(alone), "check_ms_min": 1e3 * min(alone),
                      "check_share": statistics.median(alone) / frame,
+                     "check_percent": 100 * statistics.median(alone) / frame,
                      "pair_difference_ms": [1e3 * min(diffs), 1e3 * statistics.median(diffs), 1e3 * max(diffs)]}
-        rows.append({"benchmark": "input_checks", "scene": name, "worlds": W, "cameras": C, "width": X, "height": H,
-                     "seconds": statistics.median(alone), "render_seconds": frame})
+        rows.append({"benchmark": "input_checks", "scene": name, "what": "check", "count": W * C,
+                     "seconds": statistics.median(alone)})
+        rows.append({"benchmark": "input_checks", "scene": name, "what": "render_1spp_unchecked", "count": W * C,
+                     "seconds": frame})
         print(f"  {name}: {W} worlds x {C} cameras at {X}x{H}: check {out[name]['check_ms']:.3f} ms "
               f"(min {out[name]['check_ms_min']:.3f}) = {100 * out[name]['check_share']:.2f}% of a "
               f"{1e3 * frame:.2f} ms 1-spp render; checked - unchecked per pair: "
