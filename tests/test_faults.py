@@ -273,6 +273,32 @@ def test_a_signal_while_numpy_and_warp_load_exits_in_one_line(basic, tmp_path, s
     assert stdout == "" and not (tmp_path / "a.png").exists()
 
 
+@POSIX
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupt_that_a_library_turns_into_its_own_error_is_still_an_interrupt(basic, tmp_path, capsys,
+                                                                                    monkeypatch, sig, code):
+    """NumPy turns a KeyboardInterrupt inside its C import of datetime into an ImportError (seen in
+    a real run): once a signal has come, the error of the step it cut is reported as the
+    interrupt, in one line, with the signal's status. Without a signal an error stays an error."""
+    loader = importlib.import_module("warprt.scene.loader")
+
+    def cut_import(path):  # the interrupt lands inside, and comes out as another error
+        try:
+            os.kill(os.getpid(), sig)
+            time.sleep(0.05)
+        except KeyboardInterrupt:
+            raise ImportError("PyCapsule_Import could not import module \"datetime\"") from None
+        pytest.fail("the signal did not interrupt")
+
+    monkeypatch.setattr(loader, "load_scene", cut_import)
+    status, out, err = run_cli(["render", basic, "-o", tmp_path / "a.png"], capsys)
+    assert status == code and err.splitlines() == [
+        "warprt: interrupted" + ("" if sig == signal.SIGINT else " (SIGTERM)")]
+    monkeypatch.setattr(loader, "load_scene", lambda path: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        main(["render", str(basic), "-o", str(tmp_path / "a.png")])
+
+
 def private_cache(tmp_path: pathlib.Path, without: str) -> pathlib.Path:
     """A kernel cache holding the shared cache's entries (as links) except those whose name
     starts with ``without`` (those compile, into this folder only)."""

@@ -26,7 +26,7 @@ import sys
 import time
 import warnings
 
-from .errors import RenderError, SceneError
+from .errors import RenderError, SceneError, WriteError
 
 
 def _int_in(text: str, lo: int, hi: int | None, expected: str) -> int:
@@ -282,6 +282,13 @@ def main(argv: list[str] | None = None) -> int:
             print("warprt: interrupted" + (f" ({signal_name(run.first)})" if run.first not in (None, 2) else ""),
                   file=sys.stderr)
             code = run.exit_code()
+        except Exception:
+            # an interrupt that a library turned into its own error (a KeyboardInterrupt inside
+            # NumPy's C import of datetime comes out as an ImportError): the signal decides
+            if not run.received:
+                raise
+            print("warprt: interrupted" + (f" ({signal_name(run.first)})" if run.first != 2 else ""), file=sys.stderr)
+            code = run.exit_code()
     if argv is None:
         _leave(code)
     return code
@@ -315,6 +322,8 @@ def _main(args: argparse.Namespace, run) -> int:
         if args.command == "render-sequence":
             return _render_sequence(args, run)
     except (SceneError, RenderError) as e:
+        if run.received and not isinstance(e, WriteError):
+            raise  # (an error of an interrupted step: main reports the interrupt)
         print(f"warprt: error: {e}", file=sys.stderr)
         return 2
     return 2
