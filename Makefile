@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
 
-.PHONY: render test mutate bench bench-peers bench-newton install clean
+.PHONY: render test mutate fuzz-signals bench bench-peers bench-newton install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,12 @@ test: $(STAMP)
 # caught by the tests listed for it in tests/mutations.toml
 mutate: $(STAMP)
 	$(PY) -m tests.mutate $(MUTATE_ARGS)
+
+# SIGINT and SIGTERM at random moments of real runs (not part of `make test`): every run must end
+# in one line with the signal's status, leave nothing behind and lose no finished image
+FUZZ_ARGS ?= --trials 100
+fuzz-signals: $(STAMP)
+	$(PY) -m tests.fuzz_signals $(FUZZ_ARGS)
 
 # speed, accuracy and compile cost, then the side by side with Mitsuba 3 where the `peers` extra
 # is installed (without it benchmarks.peers says so in one line and skips)

@@ -4,6 +4,7 @@
     python -m benchmarks.run --quick    # smaller sizes, for a smoke run
     python -m benchmarks.run --only error,growth
     python -m benchmarks.run --only specialisation --merge   # re-measure one section in place
+    python -m benchmarks.run --only checks --merge           # the device-input checks' cost
 
 Writes under docs/benchmarks/ (or --out): results.json, results.csv (one row per measurement),
 and charts (PNG, needs matplotlib: the ``charts`` extra). Timings are wall-clock medians on the
@@ -398,17 +399,68 @@ def write_charts(charts, out: Path) -> list[str]:
     return written
 
 
+def bench_input_checks(rows, quick: bool, pairs: int = 15):
+    """The cost of checking a BatchRenderer's device inputs before each render (``warprt.checks``:
+    one launch over the pose arrays, light positions and fields of view, one read of six integers):
+    renders with ``check_inputs`` on and off, interleaved in ``pairs`` pairs after a warm-up, and
+    the check alone. Two batch shapes: many small views (where a fixed cost shows most) and a few
+    larger ones."""
+    from warprt.checks import check_batch
+
+    scene = plain_scene(16)
+    out = {}
+    cases = [("one_tiny", 1, 1, 16, 16), ("many_small", 256, 2, 16, 16), ("few_large", 8, 2, 128, 128)]
+    if quick:
+        cases = [("one_tiny", 1, 1, 16, 16), ("many_small", 32, 2, 16, 16), ("few_large", 2, 1, 64, 64)]
+    for name, W, C, H, X in cases:
+        b = warprt.BatchRenderer(scene.with_camera(width=X, height=H), worlds=W, cameras=C)
+        poses = np.zeros((W, len(scene.shapes), 7))
+        poses[..., 6] = 1.0
+        poses[..., 0] = np.linspace(-0.5, 0.5, W)[:, None]
+        b.set_shape_poses(poses)
+        b.render(spp=1)
+        on, off = [], []
+        for _ in range(pairs):
+            for flag, times in ((True, on), (False, off)):
+                b.check_inputs = flag
+                start = time.perf_counter()
+                b.render(spp=1)
+                times.append(time.perf_counter() - start)
+        alone = []
+        for _ in range(pairs):
+            start = time.perf_counter()
+            check_batch(b, b.shape_poses, b.camera_poses)
+            alone.append(time.perf_counter() - start)
+        frame = statistics.median(off)
+        diffs = [a - b_ for a, b_ in zip(on, off)]
+        out[name] = {"worlds": W, "cameras": C, "width": X, "height": H, "elements": W * (len(scene.shapes) * 2 + C * 2)
+                     + C, "render_ms_checked": 1e3 * statistics.median(on), "render_ms_unchecked": 1e3 * frame,
+                     "check_ms": 1e3 * statistics.median(alone), "check_ms_min": 1e3 * min(alone),
+                     "check_share": statistics.median(alone) / frame,
+                     "check_percent": 100 * statistics.median(alone) / frame,
+                     "pair_difference_ms": [1e3 * min(diffs), 1e3 * statistics.median(diffs), 1e3 * max(diffs)]}
+        rows.append({"benchmark": "input_checks", "scene": name, "what": "check", "count": W * C,
+                     "seconds": statistics.median(alone)})
+        rows.append({"benchmark": "input_checks", "scene": name, "what": "render_1spp_unchecked", "count": W * C,
+                     "seconds": frame})
+        print(f"  {name}: {W} worlds x {C} cameras at {X}x{H}: check {out[name]['check_ms']:.3f} ms "
+              f"(min {out[name]['check_ms_min']:.3f}) = {100 * out[name]['check_share']:.2f}% of a "
+              f"{1e3 * frame:.2f} ms 1-spp render; checked - unchecked per pair: "
+              f"{', '.join(f'{d:+.3f}' for d in out[name]['pair_difference_ms'])} ms (min, median, max)", flush=True)
+    return out
+
+
 # the results.csv "benchmark" values each step writes (for --merge)
 STEP_ROWS = {"compile": ("compile_cold", "compile_cached"), "throughput": ("throughput",),
              "specialisation": ("specialisation",), "growth": ("triangles", "spheres"),
-             "error": ("error_vs_time", "equal_error_speedup")}
+             "error": ("error_vs_time", "equal_error_speedup"), "checks": ("input_checks",)}
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=str(ROOT / "docs" / "benchmarks"))
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--only", default="compile,throughput,specialisation,growth,error")
+    parser.add_argument("--only", default="compile,throughput,specialisation,growth,error,checks")
     parser.add_argument("--merge", action="store_true",
                         help="update only the measured sections of an existing results.json / results.csv "
                              "(with --only), keeping the others")
@@ -425,7 +477,8 @@ def main(argv=None) -> int:
              ("throughput", lambda: bench_throughput(rows, args.quick)),
              ("specialisation", lambda: bench_specialisation(rows, args.quick)),
              ("growth", lambda: bench_growth(rows, charts, args.quick)),
-             ("error", lambda: bench_error_vs_time(rows, charts, args.quick))]
+             ("error", lambda: bench_error_vs_time(rows, charts, args.quick)),
+             ("checks", lambda: bench_input_checks(rows, args.quick))]
     for name, step in steps:
         if name in only:
             print(f"[{name}]", flush=True)

@@ -31,8 +31,9 @@ def build_model(worlds: int):
     for w in range(worlds):
         builder.begin_world()
         for k in range(3):
-            body = builder.add_body(xform=wp.transform((0.5 * k - 0.5, 0.2 * k, 0.8 + 0.3 * k + 0.25 * w),
-                                                       wp.quat_from_axis_angle(wp.vec3(1.0, 1.0, 0.0), 0.4 * k)))
+            # (the axis normalised: quat_from_axis_angle does not, and a longer axis scales the box)
+            tilt = wp.quat_from_axis_angle(wp.normalize(wp.vec3(1.0, 1.0, 0.0)), 0.4 * k)
+            body = builder.add_body(xform=wp.transform((0.5 * k - 0.5, 0.2 * k, 0.8 + 0.3 * k + 0.25 * w), tilt))
             builder.add_shape_box(body, hx=0.15, hy=0.15, hz=0.15, color=(0.9, 0.35 + 0.2 * k, 0.2))
         body = builder.add_body(xform=wp.transform((0.2, -0.6, 1.5 + 0.2 * w), wp.quat_identity()))
         builder.add_shape_sphere(body, radius=0.2, color=(0.2, 0.45, 0.9))

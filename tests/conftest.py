@@ -24,7 +24,9 @@ import pytest  # noqa: E402
 import warp as wp  # noqa: E402
 from hypothesis import settings as _hyp_settings  # noqa: E402
 
-import warprt  # noqa: E402,F401  (initialises Warp quietly)
+import warprt._warp  # noqa: E402
+
+warprt._warp.init()  # Warp initialised quietly, before _devices() asks it about CUDA
 
 SCENES = ROOT / "scenes"
 

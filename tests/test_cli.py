@@ -455,13 +455,47 @@ def test_render_sequence_interrupted_keeps_the_finished_frames_and_exits_130(tmp
     assert "Traceback" not in stderr
     written = sorted(p.name for p in (tmp_path / "out").iterdir())
     assert 1 <= len(written) < 8, written  # stopped before the end
-    m = re.match(r"interrupted: (\d+) of 8 frames complete \(([\d, ]+)\)", stdout.strip().splitlines()[-1])
-    assert m, stdout
-    complete = [int(x) for x in m[2].split(", ")]
-    assert written == [f"f_{f:04d}.png" for f in complete] and int(m[1]) == len(complete)
+    complete, not_written = _sequence_report(stdout.strip().splitlines()[-1], 8)
+    # the report lists as complete exactly the frames written, and as not written exactly the others
+    assert written == [f"f_{f:04d}.png" for f in complete]
+    assert sorted(complete + not_written) == list(range(8))
     for name in written:  # complete frames: full spp, no partial mark
         text = Image.open(tmp_path / "out" / name).text
         assert text["warprt_spp"] == "1000" and "warprt:partial" not in text
+
+
+def _frames(text: str) -> list[int]:
+    """ "0-3, 7" -> [0, 1, 2, 3, 7]"""
+    out = []
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b or a) + 1))
+    return out
+
+
+def _sequence_report(line: str, total: int) -> tuple[list[int], list[int]]:
+    """(complete frames, frames not written) from the report line of an interrupted sequence."""
+    m = re.match(rf"interrupted: (\d+) of {total} frames complete \(([\d, -]+|none)(?:: [^)]*)?\)"
+                 r"(?:; not written: (.*))?$", line)
+    assert m, line
+    complete = [] if m[2] == "none" else _frames(m[2])
+    assert int(m[1]) == len(complete)
+    not_written = []
+    for part in re.findall(r"([\d, -]+) \((?:cut short|not started)\)", m[3] or ""):
+        not_written += _frames(part)
+    return complete, not_written
+
+
+def test_the_interrupted_sequence_report_lists_as_not_written_only_the_frames_not_written():
+    from warprt.errors import FramesInterrupted
+
+    e = FramesInterrupted(range(8), [f"seq/t/f_{f:04d}.exr" for f in range(8)], cut_short=[8], total=20,
+                          not_started=range(9, 20))
+    line = e.summary()
+    assert line == ("interrupted: 8 of 20 frames complete (0-7: seq/t/f_0000.exr ... seq/t/f_0007.exr); "
+                    "not written: 8 (cut short), 9-19 (not started)")
+    complete, not_written = _sequence_report(line, 20)
+    assert complete == list(range(8)) and not_written == list(range(8, 20))
 
 
 def test_render_frames_interrupted_raises_with_the_finished_frames(tmp_path, monkeypatch):
@@ -487,7 +521,9 @@ def test_render_frames_interrupted_raises_with_the_finished_frames(tmp_path, mon
     e = info.value
     assert isinstance(e, KeyboardInterrupt)
     assert e.frames == [0] and e.results == [str(tmp_path / "f_0.png")] and e.cut_short == [1]
-    assert "1 of 3 frames complete (0)" in str(e) and "cut short and not written: 1" in str(e)
+    assert e.not_started == [2]
+    assert str(e) == (f"interrupted: 1 of 3 frames complete (0: {tmp_path / 'f_0.png'}); "
+                      "not written: 1 (cut short), 2 (not started)")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f_0.png"] and len(calls) == 2
 
 

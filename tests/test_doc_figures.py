@@ -61,6 +61,12 @@ FIGURES = [
         f"newton/cases/{key}/speed_ratio_spread/0", f"newton/cases/{key}/speed_ratio_spread/1",
         f"newton/cases/{key}/speed_ratio_1core"]) for key in ("a", "b")],
     ("docs/benchmarks.md", rf"pose update from `state.body_q` takes {N} ms", ["newton/cases/a/pose_update/update_ms_median"]),
+    # the device check of a batch's inputs
+    *[("docs/benchmarks.md", rf"\| {label} \| {N} \| {N} ms \| {N} ms \| {N}% \|",
+       [f"checks/{key}/elements", f"checks/{key}/check_ms", f"checks/{key}/render_ms_unchecked",
+        f"checks/{key}/check_percent"])
+      for label, key in (("1 world × 1 camera, 16×16", "one_tiny"), ("256 worlds × 2 cameras, 16×16", "many_small"),
+                         ("8 worlds × 2 cameras, 128×128", "few_large"))],
     *[("docs/benchmarks.md", rf"\| {label} \| {N}× \| {N}× \|", [f"error/{key}/stratified", f"error/{key}/sobol"])
       for label, key in (("soft shadows", "soft_shadows"), ("depth of field", "depth_of_field"),
                          (r"antialiasing \(edges\)", "antialiasing"), ("glossy reflection", "glossy"),

@@ -13,6 +13,7 @@ from PIL import Image
 
 import warprt
 from warprt import RenderError, read_exr, save_image
+from warprt.errors import WriteError
 from warprt import image as image_module
 
 
@@ -215,8 +216,10 @@ def test_a_failed_write_leaves_no_file_and_no_temp_file(tmp_path, monkeypatch, e
     else:
         monkeypatch.setattr(_ExrFileThatFails, "exc", exc)
         monkeypatch.setattr(OpenEXR, "File", _ExrFileThatFails)
-    with pytest.raises(type(exc)):
+    with pytest.raises(WriteError if isinstance(exc, OSError) else type(exc)) as info:  # (a named, one-line error)
         save_image(random_image(4, 4, seed=6), path)
+    if isinstance(exc, OSError):
+        assert str(info.value).startswith(f"{path}: cannot be written: disk full (") and info.value.path == str(path)
     monkeypatch.undo()
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     assert after == before  # nothing new (no temp file), an existing image byte for byte unchanged

@@ -14,6 +14,7 @@ another shape in one renderer (counted, 0.1% allowed).
 from __future__ import annotations
 
 import math
+import re
 import warnings
 
 import numpy as np
@@ -343,3 +344,47 @@ def test_shapes_without_a_warprt_counterpart_are_refused_by_index(add, problem):
     add(b, body)
     with pytest.raises(warprt.SceneError, match=rf"model\.shapes\[1\].*{problem}"):
         scene_from_model(b.finalize(device="cpu"))
+
+
+def test_an_exploded_body_is_named_before_the_render():
+    """A NaN (or a non-unit quaternion) in ``state.body_q`` of a body that carries a shape: the
+    update names the body and its world, on the device, before anything renders; check_inputs=False
+    lets it through."""
+    m = model()
+    state = moved_state(m)
+    r = NewtonRenderer(m, cameras=1, camera=warprt.Camera(width=8, height=8))
+    r.update(state)
+    r.render()
+    q = state.body_q.numpy()
+    bad = len(q) - 1  # world 1's sphere body
+    q[bad, 0] = np.nan
+    state.body_q.assign(q)
+    with pytest.raises(warprt.RenderError) as info:
+        r.update(state)
+    assert str(info.value).startswith(f"state.body_q[{bad}] (body 'body_1', world 1): position (nan, ")
+    assert "diverged" in str(info.value)
+    q[bad, 0] = 0.0
+    q[bad, 6] = 2.0
+    state.body_q.assign(q)
+    with pytest.raises(warprt.RenderError, match=rf"state.body_q\[{bad}\] \(body 'body_1', world 1\): quaternion .* squared length"):
+        r.update(state)
+    r.check_inputs = False
+    r.update(state)
+    r.render()
+
+
+def test_bad_models_and_states_are_named():
+    for bad in (None, "model", 3):
+        with pytest.raises(warprt.SceneError, match=r"^model: expected a newton.Model \(ModelBuilder.finalize\(\)\), "
+                                                    f"got {type(bad).__name__}$"):
+            NewtonRenderer(bad)
+    with pytest.raises(warprt.SceneError, match="call .finalize"):
+        NewtonRenderer(newton.ModelBuilder())
+    r = NewtonRenderer(model(), cameras=1, camera=warprt.Camera(width=8, height=8))
+    for state, words in ((None, "got NoneType"), (object(), "got NoneType"),
+                         (type("S", (), {"body_q": wp.zeros(3, dtype=wp.vec3, device="cpu")})(), "got vec3f (3,)")):
+        with pytest.raises(warprt.RenderError, match=rf"^state.body_q: expected a wp.array of wp.transform .*{re.escape(words)}"):
+            r.update(state)
+    short = type("S", (), {"body_q": wp.zeros(1, dtype=wp.transform, device="cpu")})()
+    with pytest.raises(warprt.RenderError, match="state.body_q holds 1 bodies"):
+        r.update(short)

@@ -206,6 +206,17 @@ def test_mesh_points_from_numpy_or_warp_refit_without_rebuild(n_faces):
         renderer.set_mesh_points(0, v[:2])
     with pytest.raises(warprt.RenderError, match="finite"):
         renderer.set_mesh_points(0, np.full_like(v, np.nan))
+    # a simulation's array is checked on the device: the first bad vertex named
+    bad = v.astype(np.float32)
+    bad[-1, 1] = np.inf
+    with pytest.raises(warprt.RenderError, match=rf"^points\[{len(v) - 1}\]: position \(.*inf.*\) is not finite"):
+        renderer.set_mesh_points(0, wp.array(bad, dtype=wp.vec3, device=renderer.device))
+    for points, words in (("abc", "points must be"), (None, "points must be"), ([["a", "b", "c"]], "numbers")):
+        with pytest.raises(warprt.RenderError, match=words):
+            renderer.set_mesh_points(0, points)
+    for index in ("abc", 1, -1, 0.0, True):
+        with pytest.raises(warprt.RenderError, match=r"shape_index must be an index into scene.shapes \(0 to 0\)"):
+            renderer.set_mesh_points(index, v)
 
 
 def test_camera_and_lights_change_between_frames():
@@ -503,12 +514,19 @@ def test_cli_interrupted_writes_the_partial_image_with_its_spp(tmp_path):
     png = tmp_path / "partial.png"
     png.write_bytes(b"the previous complete image")
     env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
     proc = subprocess.Popen([sys.executable, "-m", "warprt", "render", str(scene), "-o", str(out), "-o", str(png),
-                             "--spp", "1048576", "--no-progress"], env=env,  # the spp limit, 2^20
+                             "--spp", "1048576"], env=env,  # the spp limit, 2^20; with a progress bar
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)  # import, load the kernel, render a few passes
+    # the progress bar shows half a second into the render, whatever the import and load took
+    from test_faults import progress_reader, wait_for
+
+    seen = progress_reader(proc)
+    wait_for(proc, lambda: "spp" in "".join(seen), "the progress bar")
+    sent = time.monotonic()
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=120)
+    assert time.monotonic() - sent < 5.0  # within a pass (about half a second) and the writes
     assert proc.returncode == 130, stderr
     _, header = warprt.read_exr(out)
     assert 1 <= int(header["warprt_spp"]) < 1048576 and int(header["warprt_interrupted"]) == 1

@@ -210,7 +210,7 @@ def test_update_loop_makes_no_host_copy_no_rebuild_and_no_compile(monkeypatch):
                                        wp.quat_from_axis_angle(wp.vec3(0.0, 1.0, 0.0), t))
 
     wp.launch(step, dim=(W, 3), inputs=[br.shape_poses, 0.0], device="cpu")  # (compiled before counting)
-    calls = {"numpy": 0, "assign": 0, "from_host": 0, "loads": 0}
+    calls = {"numpy": 0, "assign": 0, "from_host": 0, "loads": 0, "check_reads": 0}
     originals = {}
 
     def wrap(owner, name, key, condition=None):
@@ -224,7 +224,9 @@ def test_update_loop_makes_no_host_copy_no_rebuild_and_no_compile(monkeypatch):
 
         monkeypatch.setattr(owner, name, counted)
 
-    wrap(wp.array, "numpy", "numpy")
+    # the device check of the inputs (warprt.checks) reads back its answer, six integers, once a render
+    wrap(wp.array, "numpy", "check_reads", lambda self: self.size == 6 and self.dtype == wp.int32)
+    wrap(wp.array, "numpy", "numpy", lambda self: not (self.size == 6 and self.dtype == wp.int32))
     wrap(wp.array, "assign", "assign")
     wrap(wp.array, "__init__", "from_host",
          lambda self, data=None, *a, **k: data is not None and not isinstance(data, wp.array))
@@ -244,7 +246,7 @@ def test_update_loop_makes_no_host_copy_no_rebuild_and_no_compile(monkeypatch):
         wp.launch(step, dim=(W, 3), inputs=[br.shape_poses, 0.4 * k], device="cpu")
         images.append(wp.clone(br.render(spp=1).color))
     monkeypatch.undo()
-    assert calls == {"numpy": 0, "assign": 0, "from_host": 0, "loads": 0}, calls
+    assert calls == {"numpy": 0, "assign": 0, "from_host": 0, "loads": 0, "check_reads": 4}, calls
     assert br.counters == before
     # and the poses really were used: the frames differ
     assert not np.array_equal(images[0].numpy(), images[3].numpy())
@@ -275,10 +277,21 @@ def test_motion_blur_between_pose_arrays_matches_a_moving_sphere():
 def test_pose_inputs_are_checked():
     scene = base_scene()
     br = BatchRenderer(scene, worlds=2, cameras=1, device="cpu")
-    with pytest.raises(RenderError, match=r"shape_poses: expected finite values shaped \(2, 3, 7\)"):
+    with pytest.raises(RenderError, match=r"shape_poses: expected values shaped \(2, 3, 7\)"):
         br.set_shape_poses(np.zeros((2, 2, 7)))
-    with pytest.raises(RenderError, match="quaternion is zero"):
+    with pytest.raises(RenderError, match=r"shape_poses\[0, 0\]: a quaternion is zero"):
         br.set_shape_poses(np.zeros((2, 3, 7)))
+    for bad in ("abc", None, [["x"]], {"a": 1}):
+        with pytest.raises(RenderError, match="shape_poses: expected"):
+            br.set_shape_poses(bad)
+    huge = np.zeros((2, 1, 7))
+    huge[..., 6] = 1.0
+    huge[1, 0, 2] = 1e39  # finite in float64, infinite in float32
+    with pytest.raises(RenderError, match=r"camera_poses\[1, 0\]: position \(0, 0, 1e\+39\) is beyond 1e\+19"):
+        br.set_camera_poses(huge)
+    huge[1, 0, 2] = np.nan
+    with pytest.raises(RenderError, match=r"camera_poses\[1, 0\]: position \(0, 0, nan\) is not finite"):
+        br.set_camera_poses(huge)
     shear = np.tile(np.eye(4), (2, 3, 1, 1))
     shear[0, 0, 0, 1] = 0.5
     with pytest.raises(RenderError, match="rotation and a translation"):
@@ -320,3 +333,74 @@ def test_batch_aovs_equal_the_single_render_aovs_of_each_world():
             np.testing.assert_allclose(got["depth"][w, c][hit], ref["depth"][hit], rtol=2e-5)
             np.testing.assert_allclose(got["normal"][w, c][hit], ref["normal"][hit], atol=2e-4)
     assert len(set(np.unique(got["object_id"]))) == 4  # sky, floor, sphere, box
+
+
+# --- device inputs checked on the device (warprt.checks) --------------------------------------------
+
+
+def _set(array: "wp.array", index, value) -> None:
+    a = array.numpy()
+    a[index] = value
+    array.assign(a)
+
+
+@pytest.mark.parametrize("name, index, value, words", [
+    ("shape_poses", (1, 2, 0), np.nan, "shape_poses[1, 2] (world 1, scene.shapes[2]): position (nan, 0, 0) is not finite"),
+    ("shape_poses", (0, 1, 6), 1.01, "shape_poses[0, 1] (world 0, scene.shapes[1]): quaternion (0, 0, 0, 1.01) has "
+                                     "squared length 1.0201"),
+    ("shape_poses", (1, 1, 3), np.inf, "quaternion (inf, 0, 0, 1) is not finite"),
+    ("camera_poses", (1, 1, 5), np.nan, "camera_poses[1, 1] (world 1, camera 1): quaternion"),
+    ("camera_poses", (0, 1, 0), 3e19, "camera_poses[0, 1] (world 0, camera 1): position (3e+19"),
+    ("light_positions", (1, 0, 1), np.nan, "light_positions[1, 0] (world 1, scene.lights[0]): position"),
+    ("light_positions", (0, 1), 0.0, "light_positions[0, 1] (world 0, scene.lights[1]): direction (0, 0, 0) is zero"),
+    ("fov", 1, 0.0, "fov[1] (camera 1): 0 degrees is outside (0, 180)"),
+    ("fov", 0, 180.0, "fov[0] (camera 0): 180 degrees"),
+    ("fov", 0, np.nan, "fov[0] (camera 0): nan degrees"),
+])
+def test_device_inputs_are_checked_on_the_device_before_each_render(name, index, value, words):
+    """A NaN, a non-unit quaternion, a huge coordinate, a zero direction or a zero field of view
+    written into a pose array (as a simulation kernel would) is named, world, camera, shape or
+    light, before anything renders; check_inputs=False lets it through (and the render then
+    goes on as before, e.g. a black view or a vanished body)."""
+    br = BatchRenderer(base_scene(), worlds=2, cameras=2, device="cpu")
+    good = br.render(spp=1).numpy()
+    before = getattr(br, name).numpy().copy()
+    _set(getattr(br, name), index, value)
+    with pytest.raises(RenderError) as info:
+        br.render(spp=1)
+    assert words in str(info.value) and str(info.value).endswith("(check_inputs=False skips this check)")
+    br.check_inputs = False
+    br.render(spp=1)
+    br.check_inputs = True
+    getattr(br, name).assign(before)
+    assert np.array_equal(br.render(spp=1).numpy(), good)  # (the check changes no image)
+
+
+def test_a_quaternion_normalised_in_float32_passes_and_the_end_poses_are_checked_with_motion_blur():
+    # (the motion-blur test's scene: its kernel variant is built anyway)
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 1, 4), look_at=(0, 0.5, 0), fov=40, width=X, height=H),
+                         shapes=(warprt.Sphere(center=(0, 0.5, 0), radius=0.5),),
+                         lights=(warprt.PointLight(position=(1, 3, 3)),))
+    br = BatchRenderer(scene, worlds=2, cameras=1, device="cpu", motion_blur=True)
+    poses = random_poses(np.random.default_rng(2), 2)[:, 1:2].astype(np.float32)  # |q| off 1 by float32 rounding
+    assert np.abs((poses[..., 3:].astype(np.float64) ** 2).sum(-1) - 1).max() > 0
+    wp.copy(br.shape_poses, wp.array(poses, dtype=wp.transform, device="cpu"))
+    wp.copy(br.shape_poses_end, wp.array(poses, dtype=wp.transform, device="cpu"))
+    br.render(spp=1)
+    _set(br.shape_poses_end, (1, 0, 0), np.nan)
+    with pytest.raises(RenderError, match=r"^shape_poses_end\[1, 0\]"):
+        br.render(spp=1)
+
+
+def test_replaced_pose_arrays_are_named():
+    br = BatchRenderer(base_scene(), worlds=2, cameras=1, device="cpu")
+    br.fov = wp.zeros(3, dtype=float, device="cpu")
+    with pytest.raises(RenderError, match=r"^fov: expected a contiguous wp.array of float shaped \(1,\)"):
+        br.render(spp=1)
+    br.fov = np.array([45.0], np.float32)
+    with pytest.raises(RenderError, match="^fov: expected .* got ndarray"):
+        br.render(spp=1)
+    br.fov = wp.full(1, 45.0, dtype=float, device="cpu")
+    br.shape_poses = wp.zeros((2, 3), dtype=wp.vec3, device="cpu")
+    with pytest.raises(RenderError, match="^shape_poses: expected a contiguous wp.array of transformf"):
+        br.render(spp=1)

@@ -24,8 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .errors import FramesInterrupted, RenderError
-from .image import check_output, save_image
+from .errors import FramesInterrupted, RenderError, WriteError, frame_list
+from .image import check_output, save_image_or_fallback
 from .render import Renderer, check_seed
 from .scene.description import SOLID_TYPES, Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform, interpolate_rotation, rotation_keys
@@ -97,6 +97,13 @@ def frame_path(pattern: str, frame: int) -> str:
     return f"{root}_{frame:04d}{ext}"
 
 
+def check_pattern(output) -> str:
+    """An output pattern must be a path (str or os.PathLike)."""
+    if not isinstance(output, (str, os.PathLike)):
+        raise RenderError(f"output: expected a path pattern such as 'out/frame_####.png', got {output!r:.60}")
+    return os.fspath(output)
+
+
 def frame_seed(seed: int, frame: int) -> int:
     """Each frame gets its own noise (seed + frame), the same wherever the frame is rendered."""
     return (int(seed) + int(frame)) & 0xFFFFFFFF
@@ -105,7 +112,11 @@ def frame_seed(seed: int, frame: int) -> int:
 def check_frames(scene: Scene, frames=None, name: str = "frames") -> list[int]:
     """The frame numbers to render (default: all of them), each an integer in [0, animation.frames):
     a frame past the animation's end is an error, not a silent render of the last pose."""
+    if not isinstance(scene, Scene):
+        raise RenderError(f"expected a warprt.Scene, got {type(scene).__name__}")
     n = scene.animation.frames
+    if frames is not None and (isinstance(frames, (str, bytes)) or not hasattr(frames, "__iter__")):
+        raise RenderError(f"{name}: expected a list or range of frame numbers, got {frames!r:.60}")
     frames = list(range(n)) if frames is None else list(frames)
     if not frames:
         raise RenderError(f"{name}: no frames to render")
@@ -127,8 +138,25 @@ def keep_frame(output: str | None, frame: int, image, spp: int):
     folder = os.path.dirname(path)
     if folder:
         os.makedirs(folder, exist_ok=True)
-    save_image(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
+    save_image_or_fallback(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
     return path
+
+
+def _frames_were(frames: list) -> str:
+    return f"frame {frames[0]} was" if len(frames) == 1 else f"frames {frame_list(frames)} were"
+
+
+def frame_write_failed(e: WriteError, frame: int, frames: list, done: list) -> WriteError:
+    """A frame's failed write (the frame itself went to the temporary folder, see
+    ``image.save_image_or_fallback``) as one line that also says which frames were written and
+    which were not rendered."""
+    rest = [f for f in frames if f not in done and f != frame]
+    text = f"frame {frame}: {e}"
+    if done:
+        text += f"; {_frames_were(done)} written"
+    if rest:
+        text += f"; {_frames_were(rest)} not rendered"
+    return WriteError(text, e.path, e.free, e.fallback)
 
 
 def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: int | None = None, seed: int = 0,
@@ -142,13 +170,17 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
     written nor returned (a partial frame under the normal name would slip into a video), the
     frames after it are not rendered, and :class:`warprt.errors.FramesInterrupted` (a
     ``KeyboardInterrupt``) is raised, listing the complete frames (``.frames``) with their images
-    or paths (``.results``); those frames are already written.
+    or paths (``.results``); those frames are already written. A frame that cannot be written (a
+    full disk, quota or I/O error) is written to the temporary folder instead and the sequence
+    stops with a :class:`warprt.errors.WriteError` saying where it went and which frames were
+    written.
     """
     from .render import _CtrlC
 
     frames = check_frames(scene, frames)
     check_seed(seed)
     if output is not None:
+        check_pattern(output)
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     renderer = None
     done, out = [], []
@@ -177,12 +209,16 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
                     cut_short.append(f)
                     raise KeyboardInterrupt
                 image = {"color": result.image, **result.aovs} if aovs else result.image
-                out.append(keep_frame(output, f, image, result.spp))
+                try:
+                    out.append(keep_frame(output, f, image, result.spp))
+                except WriteError as e:  # a full disk: the sequence stops (the next frames would fail too)
+                    raise frame_write_failed(e, f, frames, done) from None
                 done.append(f)
                 if bar is not None:
                     bar.update(1)
     except KeyboardInterrupt:
-        raise FramesInterrupted(done, out, cut_short, total=len(frames)) from None
+        not_started = [f for f in frames if f not in done and f not in cut_short]
+        raise FramesInterrupted(done, out, cut_short, total=len(frames), not_started=not_started) from None
     finally:
         if bar is not None:
             bar.close()

@@ -257,7 +257,11 @@ def id_map(built: DeviceScene) -> IdMap:
 
 
 def check_aov_names(names) -> list[str]:
-    names = [names] if isinstance(names, str) else list(dict.fromkeys(names))
+    if isinstance(names, str):
+        names = [names]
+    elif not isinstance(names, (list, tuple, set, frozenset)) or not all(isinstance(n, str) for n in names):
+        raise RenderError(f"aovs: expected a list of AOV names ({', '.join(AOV_NAMES)}), got {names!r:.60}")
+    names = list(dict.fromkeys(names))
     unknown = [n for n in names if n not in AOVS]
     if unknown:
         raise RenderError(f"unknown AOV(s) {', '.join(map(repr, unknown))}; available: {', '.join(AOV_NAMES)}")

@@ -29,8 +29,8 @@ import os
 import threading
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 
-from .animation import check_frames, frame_path, frame_scene, frame_seed, keep_frame, render_sequence
-from .errors import FramesInterrupted, RenderError
+from .animation import check_frames, check_pattern, frame_path, frame_scene, frame_seed, frame_write_failed, keep_frame, render_sequence
+from .errors import FramesInterrupted, RenderError, WriteError
 from .image import check_output
 from .render import Renderer, _CtrlC, check_seed
 from .scene.description import Scene
@@ -43,11 +43,13 @@ _STOP = None  # in a process-pool worker: the parent's stop event
 
 def _init_process_worker(stop) -> None:
     """A process-pool worker ignores SIGINT (a terminal's Ctrl-C reaches the whole process group)
-    and stops its render when the parent sets ``stop``."""
+    and SIGTERM (Slurm sends it to every process of the job), and stops its render when the
+    parent sets ``stop``: the parent decides what is kept."""
     import signal
 
     global _STOP
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _STOP = stop
 
 
@@ -88,7 +90,11 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
                                progress=False)
     frames = check_frames(scene, frames)
     check_seed(seed)
+    for name, value in (("max_workers", max_workers), ("render_workers", render_workers)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise RenderError(f"{name} must be a positive integer, got {value!r:.60}")
     if output is not None:
+        check_pattern(output)
         check_output(frame_path(output, frames[0]), create_folders=True)  # before any rendering
     if executor == "ray":
         if not ray_available():
@@ -119,7 +125,10 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
             cut_short.append(f)
             return
         with _CtrlC() as ctrl_c:  # a Ctrl-C while writing lets the frame be written (and kept) first
-            kept[f] = keep_frame(output, f, image, n)
+            try:
+                kept[f] = keep_frame(output, f, image, n)
+            except WriteError as e:  # a full disk: stop (the next frames would fail too)
+                raise frame_write_failed(e, f, frames, [g for g in frames if g in kept]) from None
         if ctrl_c.pressed:
             raise KeyboardInterrupt
 
@@ -141,7 +150,9 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
                     continue
                 collect(fut, f)
         complete = [f for f in frames if f in kept]
-        raise FramesInterrupted(complete, [kept[f] for f in complete], cut_short, total=len(frames)) from None
+        not_started = [f for f in frames if f not in kept and f not in cut_short]
+        raise FramesInterrupted(complete, [kept[f] for f in complete], cut_short, total=len(frames),
+                                not_started=not_started) from None
     finally:
         stop.set()  # on an error too: no frame keeps rendering for nothing
         pool.shutdown(wait=True, cancel_futures=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import warnings
+import weakref
 
 import numpy as np
 import warp as wp
@@ -29,12 +30,17 @@ from .records import (
 )
 from .sampling import SAMPLER_IDS
 from .scene.description import (
-    AUTO_SAMPLES, EXTENT_WARNING, LIGHT_SAMPLING, DirectionalLight, Material, Mesh, PointLight, Scene, is_area_light,
-    scene_extent,
+    AUTO_SAMPLES, EXTENT_WARNING, LIGHT_SAMPLING, UNDERFLOW_WARNING, DirectionalLight, Material, Mesh, PointLight, Scene,
+    is_area_light, scene_extent, tiny_shapes,
 )
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
 from .trace import instance_box_kernel
+
+
+# each mesh asset's extent (the diagonal of its vertices' box, float64), measured once when its
+# wp.Mesh is built and kept as long as the mesh (for the underflow warning)
+_ASSET_EXTENT: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class DeviceScene:
@@ -54,11 +60,31 @@ class DeviceScene:
         except SceneError as e:
             raise e.within(source=scene.source) from None
         extent = scene_extent(scene)
+        where = f"{scene.source}: " if scene.source else ""
         if extent > EXTENT_WARNING:
-            where = f"{scene.source}: " if scene.source else ""
             warnings.warn(f"{where}scene coordinates reach {extent:.3g}: beyond about {EXTENT_WARNING:g} the "
                           "renderer's float32 squared distances overflow and surfaces or lights may vanish; "
                           "scale the scene down", RuntimeWarning, stacklevel=3)
+        tiny = sorted(tiny_shapes(scene) + self._tiny_meshes(),
+                      key=lambda t: (t[0].split("[")[0], int(t[0].split("[")[1].rstrip("]"))))
+        if tiny:  # the other end of float32: lengths whose squares underflow
+            (field, size), more = tiny[0], len(tiny) - 1
+            warnings.warn(f"{where}{field}{f' (and {more} more)' if more else ''} measures only {size:.3g} across: "
+                          f"below about {UNDERFLOW_WARNING:g} the renderer's float32 squared lengths underflow and it "
+                          "may vanish; scale the scene up", RuntimeWarning, stacklevel=3)
+
+    def _tiny_meshes(self) -> list[tuple[str, float]]:
+        """(field, size) of the mesh shapes whose extent (the asset's, times the largest scale)
+        is non-zero but below UNDERFLOW_WARNING."""
+        out = []
+        for i, s in enumerate(self.scene.shapes):
+            if isinstance(s, Mesh):
+                key = self.instance_assets[self.shape_ids[i][1]]
+                scale = max(abs(c) for c in (s.transform or Transform()).scale)
+                size = _ASSET_EXTENT.get(self.assets[key][0], 0.0) * scale
+                if 0.0 < size < UNDERFLOW_WARNING:
+                    out.append((f"shapes[{i}]", size))
+        return out
 
     # the tables are built as lists of record fields, then copied once to the device
     def _build(self) -> None:
@@ -95,6 +121,8 @@ class DeviceScene:
                             if tree is not None:
                                 tree.find_balls(v32, f32)  # balls, horizons, cones for shadow rays (accel.py)
                             self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
+                            _ASSET_EXTENT[mesh] = float(np.linalg.norm(np.ptp(
+                                v32[f32.reshape(-1)].astype(np.float64), axis=0)))
                         mesh, vn, tree = self.assets[key]
                         trees.append(tree)
                         asset_ids[key] = len(self.meshes)
@@ -302,6 +330,9 @@ class DeviceScene:
     def set_mesh_points(self, shape_index: int, points) -> None:
         """Move the vertices of the mesh asset behind ``scene.shapes[shape_index]`` (every
         instance of that asset follows) and refit its BVH; smooth normals are recomputed."""
+        n = len(self.shape_ids)
+        if isinstance(shape_index, bool) or not isinstance(shape_index, (int, np.integer)) or not 0 <= shape_index < n:
+            raise RenderError(f"shape_index must be an index into scene.shapes (0 to {n - 1}), got {shape_index!r}")
         kind, row = self.shape_ids[shape_index]
         if kind != KIND_MESH:
             raise SceneError(f"shape {shape_index} is not a mesh", f"shapes[{shape_index}]")

@@ -1,11 +1,21 @@
 """Command line: ``warprt render SCENE -o OUT [...]`` (also ``python -m warprt``).
 
 Exit status: 0 on success, 2 for a bad scene or argument (one line naming the file, field and
-problem, no traceback), 130 when interrupted (Ctrl-C). A render interrupted after its first pass
-still writes the samples reached: the output line says "interrupted: partial image", and the file
-carries ``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes).
+problem, no traceback) and for an image that could not be written (a full disk, a quota, an I/O
+error: one line naming the file and the space free on its disk; the image is written to the
+system's temporary folder instead and the line says where), 130 when interrupted (Ctrl-C,
+SIGINT), 143 when terminated (SIGTERM, as sent by ``timeout``, Slurm or ``docker stop``), which is
+handled as Ctrl-C is. A render interrupted after its first pass still writes the samples
+reached: the output line says "interrupted: partial image", and the file carries
+``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes). Every file
+records what reproduces it (``RenderResult.reproduction``: ``warprt_reproduce`` holds the
+options, e.g. ``--spp 37 --planned-spp 1024 --seed 0 --sampler stratified`` for a render that a
+time budget stopped at 37 samples of a 1024-sample pattern). A signal while the images are
+written is held until they are complete (one line says so; a second one abandons the files
+not yet written). Outputs whose disk cannot hold them are refused before rendering.
 ``render-sequence`` interrupted keeps every frame written so far (each is written as it finishes),
-writes no frame that was cut short, prints which frames are complete and exits 130.
+writes no frame that was cut short, prints which frames are complete and which are not written,
+and exits 130 (143 for SIGTERM).
 """
 
 from __future__ import annotations
@@ -16,7 +26,7 @@ import sys
 import time
 import warnings
 
-from .errors import RenderError, SceneError
+from .errors import RenderError, SceneError, WriteError
 
 
 def _int_in(text: str, lo: int, hi: int | None, expected: str) -> int:
@@ -73,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output image (.png or .exr); repeat for several formats")
     r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     r.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1 (default 0)")
+    r.add_argument("--planned-spp", type=_spp,
+                   help="lay the sampler's pattern out for this many samples and run the first --spp of them "
+                        "(reproduces an image stopped early: its warprt_reproduce header gives both)")
     r.add_argument("--width", type=_positive_int, help="image width in pixels")
     r.add_argument("--height", type=_positive_int, help="image height in pixels")
     r.add_argument("--max-depth", type=_non_negative_int, help="reflection/refraction depth limit")
@@ -126,13 +139,16 @@ def _frame_range(text: str) -> range:
     raise argparse.ArgumentTypeError(f"expected N, A:B or A:B:STEP with non-negative numbers, got {text!r}")
 
 
-def _render(args: argparse.Namespace) -> int:
-    from .image import check_output, save_image
+def _render(args: argparse.Namespace, run) -> int:
+    from .aov import AOVS
+    from .errors import WriteError
+    from .image import check_free_space, check_output, estimate_file_bytes, save_image_or_fallback
     from .memory import check_memory
     from .render import Renderer
     from .scene.loader import load_scene
+    from .signals import Deferred, signal_name
 
-    for out in args.output:  # every output checked before the scene is built or a kernel compiled
+    for out in args.output:  # every output checked (and its writer imported) before anything is built
         check_output(out, create_folders=True)
     scene = load_scene(args.scene)
     cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
@@ -146,38 +162,75 @@ def _render(args: argparse.Namespace) -> int:
         raise e.within(source=args.scene) from None
     if args.adaptive and args.time_budget is not None:
         raise RenderError("--adaptive takes a sample budget (--spp), not --time-budget")
+    if args.planned_spp is not None and args.planned_spp < (args.spp or scene.render.spp):
+        raise RenderError(f"--planned-spp ({args.planned_spp}) must be at least --spp ({args.spp or scene.render.spp})")
+    if args.planned_spp is not None and args.adaptive:
+        raise RenderError("--planned-spp does not combine with --adaptive")
+    width, height = scene.camera.width, scene.camera.height
+    channels = sum(AOVS[a].channels for a in args.aovs)
+    check_free_space({out: estimate_file_bytes(out, width, height, channels) for out in args.output})
     start = time.perf_counter()
     renderer = Renderer(scene, device=args.device)
-    check_memory(scene.camera.width, scene.camera.height, args.aovs, [os.path.splitext(o)[1] for o in args.output],
+    check_memory(width, height, args.aovs, [os.path.splitext(o)[1] for o in args.output],
                  film_on_host=renderer.device.is_cpu)  # before compiling or rendering
     compile_s = renderer.compile()
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
-                             progress=not args.no_progress, aovs=args.aovs or None, adaptive=args.adaptive)
-    meta = {"warprt_spp": result.spp, "warprt_seed": args.seed, "warprt_interrupted": int(result.interrupted)}
+                             progress=not args.no_progress, aovs=args.aovs or None, adaptive=args.adaptive,
+                             planned_spp=args.planned_spp)
+    meta = result.reproduction()
     if result.interrupted:  # a partial image replaces the output: mark it in the file (PNG text, EXR header)
         meta["warprt:partial"] = "true"
     image = {"color": result.image, **result.aovs} if result.aovs else result.image
-    for out in args.output:
-        folder = os.path.dirname(out)
-        if folder:
-            os.makedirs(folder, exist_ok=True)
-        save_image(image, out, metadata=meta)
+
+    # the samples are done: from here a signal waits for the files (a second one abandons those
+    # not yet written), and a full disk sends the image to the temporary folder
+    written: list[str] = []
+    failed: list[WriteError] = []
+
+    def finishing(signum: int) -> None:
+        pending = [o for o in args.output if o not in written]
+        print(f"warprt: {signal_name(signum)}: writing {', '.join(pending)} first; press Ctrl-C again to abandon",
+              file=sys.stderr, flush=True)
+
+    try:
+        with Deferred(abandon_on=2, on_first=finishing):
+            for out in args.output:
+                folder = os.path.dirname(out)
+                if folder:
+                    os.makedirs(folder, exist_ok=True)
+                try:
+                    save_image_or_fallback(image, out, metadata=meta)
+                    written.append(out)
+                except WriteError as e:
+                    failed.append(e)
+    except KeyboardInterrupt:
+        lost = [o for o in args.output if o not in written]
+        print(f"warprt: interrupted while writing: {', '.join(lost)} abandoned (not written)"
+              + (f"; {', '.join(written)} written" if written else ""), file=sys.stderr)
+        return run.exit_code()
+    for e in failed:
+        print(f"warprt: error: {e}", file=sys.stderr)
     total = time.perf_counter() - start
     h, w = result.image.shape[:2]
     note = " (interrupted: partial image)" if result.interrupted else ""
+    if run.received and not result.interrupted:
+        note = f" (interrupted by {signal_name(run.first)} while writing: the files are complete)"
     if result.stack_overflows:
         print(f"warning: {result.stack_overflows} rays dropped on full ray stacks (lower max_depth)", file=sys.stderr)
-    print(f"{', '.join(args.output)}: {w}x{h}, {result.spp} spp{note}, render {result.wall_time:.2f} s "
-          f"(total {total:.2f} s, kernel load {compile_s:.2f} s), {result.rays / 1e6:.2f} Mrays, "
-          f"{result.mrays_per_s:.2f} Mrays/s on {result.device}")
-    return 130 if result.interrupted else 0
+    if written:
+        print(f"{', '.join(written)}: {w}x{h}, {result.spp} spp{note}, render {result.wall_time:.2f} s "
+              f"(total {total:.2f} s, kernel load {compile_s:.2f} s), {result.rays / 1e6:.2f} Mrays, "
+              f"{result.mrays_per_s:.2f} Mrays/s on {result.device}")
+    if failed:
+        return 2
+    return run.exit_code() if (result.interrupted or run.received) else 0
 
 
-def _render_sequence(args: argparse.Namespace) -> int:
-    from .animation import check_frames, render_sequence
+def _render_sequence(args: argparse.Namespace, run) -> int:
+    from .animation import check_frames, frame_path, render_sequence
     from .batch import render_frames
     from .errors import FramesInterrupted
-    from .image import check_output
+    from .image import check_free_space, check_output, estimate_file_bytes
     from .scene.loader import load_scene
 
     check_output(args.output, create_folders=True)  # the pattern's extension and folder, before rendering
@@ -189,6 +242,8 @@ def _render_sequence(args: argparse.Namespace) -> int:
         except SceneError as e:
             raise e.within(source=args.scene) from None
     frames = check_frames(scene, args.frames, name=f"{args.scene}: --frames")  # (named after the file)
+    check_free_space({frame_path(args.output, f): estimate_file_bytes(args.output, scene.camera.width,
+                                                                      scene.camera.height) for f in frames})
     start = time.perf_counter()
     try:
         if args.executor == "local":
@@ -198,11 +253,11 @@ def _render_sequence(args: argparse.Namespace) -> int:
             paths = render_frames(scene, frames=frames, spp=args.spp, seed=args.seed, executor=args.executor,
                                   device=args.device, max_workers=args.jobs, output=args.output)
     except FramesInterrupted as e:  # the finished frames are written; the one(s) cut short are not
-        print(f"{e.summary()}{': ' + ', '.join(e.results) if e.results else ''}")
-        return 130
+        print(e.summary())
+        return run.exit_code()
     total = time.perf_counter() - start
     print(f"{len(paths)} frames ({paths[0]} ... {paths[-1]}) in {total:.2f} s, {total / len(paths):.2f} s per frame")
-    return 0
+    return run.exit_code() if run.received else 0
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -211,24 +266,66 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    with warnings.catch_warnings():
-        warnings.showwarning = _show_warning
-        return _main(args)
+    """Run the command line; returns the exit status. ``argv`` None: the process's own arguments,
+    and the process exits here once the work is over (see :func:`_leave`), SIGINT and SIGTERM
+    ignored from then on (nothing of the exit can be interrupted into a traceback); with ``argv``
+    the previous handlers come back and the status is returned."""
+    from .signals import program, signal_name
+
+    with program(ignore_after=argv is None) as run:
+        try:
+            args = build_parser().parse_args(argv)
+            with warnings.catch_warnings():
+                warnings.showwarning = _show_warning
+                code = _main(args, run)
+        except KeyboardInterrupt:  # e.g. while Warp or the scene was loading, or a kernel compiled
+            print("warprt: interrupted" + (f" ({signal_name(run.first)})" if run.first not in (None, 2) else ""),
+                  file=sys.stderr)
+            code = run.exit_code()
+        except Exception:
+            # an interrupt that a library turned into its own error (a KeyboardInterrupt inside
+            # NumPy's C import of datetime comes out as an ImportError): the signal decides
+            if not run.received:
+                raise
+            print("warprt: interrupted" + (f" ({signal_name(run.first)})" if run.first != 2 else ""), file=sys.stderr)
+            code = run.exit_code()
+    if argv is None:
+        _leave(code)
+    return code
 
 
-def _main(args: argparse.Namespace) -> int:
+def _leave(code: int) -> None:
+    """End the process now, with ``code``, once the outputs are written and the streams flushed:
+    the interpreter's normal teardown unloads Warp's runtime and modules, which takes about a
+    second (the time a Ctrl-C would otherwise wait after the work had stopped), and a compile the
+    command stopped waiting for (``warprt._warp.abandoned_compiles``, its build folder removed)
+    would be waited for or torn down under it. Not where Ray was started (its own exit handler
+    stops the local cluster)."""
+    warp_side = sys.modules.get("warprt._warp")
+    if warp_side is not None:
+        warp_side.abandoned_compiles()
+    ray = sys.modules.get("ray")
+    if ray is not None and getattr(ray, "is_initialized", lambda: False)():
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
+
+
+def _main(args: argparse.Namespace, run) -> int:
     try:
         if args.command == "render":
-            return _render(args)
+            return _render(args, run)
         if args.command == "render-sequence":
-            return _render_sequence(args)
+            return _render_sequence(args, run)
     except (SceneError, RenderError) as e:
+        if run.received and not isinstance(e, WriteError):
+            raise  # (an error of an interrupted step: main reports the interrupt)
         print(f"warprt: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("warprt: interrupted", file=sys.stderr)
-        return 130
     return 2
 
 

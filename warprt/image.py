@@ -10,10 +10,20 @@ which matches no ``*.exr``/``*.png`` glob) and renamed into place, so a crash or
 leaves a truncated image, and an existing file is replaced only by a complete one. Temporary files
 of the same output left by a killed process are removed by the next write. Replacing a file keeps
 its permissions; writing to a symbolic link writes (atomically) to the file it points to.
+
+A Ctrl-C during a write is held until the file is complete, then delivered
+(:class:`warprt.signals.Deferred`); a second one abandons the write (no file, the old one kept).
+A write that fails on a full disk, a quota or an I/O error raises :class:`warprt.errors.WriteError`
+naming the file and the space free on its disk; :func:`save_image_or_fallback` then writes the
+image, which is still in memory, to the system's temporary folder and says where.
+:func:`check_output` imports the writer of the format (OpenEXR, Pillow) too, so nothing is
+imported once the samples are done, and :func:`check_free_space` refuses, before rendering,
+outputs whose disk cannot hold them.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import stat
@@ -22,9 +32,11 @@ from typing import Mapping
 
 import numpy as np
 
-from .errors import RenderError
+from .errors import RenderError, WriteError
+from .signals import Deferred
 
 FORMATS = (".exr", ".png")
+EXR_MAGIC = b"\x76\x2f\x31\x01"  # the first four bytes of every OpenEXR file
 
 
 def _check_image(image) -> np.ndarray:
@@ -83,10 +95,11 @@ def check_output(path: str | os.PathLike, create_folders: bool = False) -> str:
     extension, not a folder, and a folder where a file can be created (with ``create_folders``, a
     missing folder is fine when it could be created under its nearest existing parent). Raises
     :class:`RenderError` with one line naming ``path`` and the problem; returns ``path``."""
-    path = os.fspath(path)
+    path = _check_path(path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+    import_writer(ext, path)
     if os.path.isdir(path):
         raise RenderError(f"{path}: is a folder, not an image file")
     folder = os.path.dirname(os.path.abspath(_target(path)))
@@ -108,6 +121,91 @@ def check_output(path: str | os.PathLike, create_folders: bool = False) -> str:
         raise RenderError(f"{path}: cannot be written: cannot create a file in {existing!r} "
                           f"({e.strerror or e})") from None
     return path
+
+
+def import_writer(ext: str, path: str = "") -> None:
+    """Import the library that writes ``ext`` files now (``check_output`` does, before any
+    rendering): an import is a second of work that a Ctrl-C could otherwise cut after the samples
+    are done. A missing library is a :class:`RenderError` naming it."""
+    try:
+        if ext == ".exr":
+            import OpenEXR  # noqa: F401
+        elif ext == ".png":
+            from PIL import Image, PngImagePlugin  # noqa: F401
+    except ImportError as e:
+        package = "OpenEXR" if ext == ".exr" else "Pillow"
+        raise RenderError(f"{path or ext}: writing {ext} files needs {package} ({e}); "
+                          f"pip install {package}") from None
+
+
+# bytes per pixel of a file at most (no compression): the EXR's float32 RGB and each AOV channel
+# (4 bytes, float32 or uint32), the PNG's 8-bit RGB; plus headers and the compressors' worst case
+EXR_PIXEL_BYTES = 12
+EXR_CHANNEL_BYTES = 4
+PNG_PIXEL_BYTES = 3
+FILE_OVERHEAD = 64 * 1024  # header, offset tables
+INCOMPRESSIBLE = 1.01  # zlib's worst case adds a fraction of a percent to incompressible data
+
+
+def estimate_file_bytes(path: str, width: int, height: int, aov_channels: int = 0) -> int:
+    """The largest size a ``width`` × ``height`` image written to ``path`` can take (an EXR with
+    ``aov_channels`` extra channels; a PNG holds the colour only)."""
+    per_pixel = PNG_PIXEL_BYTES if os.path.splitext(os.fspath(path))[1].lower() == ".png" else \
+        EXR_PIXEL_BYTES + EXR_CHANNEL_BYTES * aov_channels
+    return int(per_pixel * int(width) * int(height) * INCOMPRESSIBLE) + FILE_OVERHEAD
+
+
+def free_bytes(folder: str) -> int | None:
+    """Bytes free to this user on the disk holding ``folder`` (its nearest existing parent), or
+    None where unknown."""
+    import shutil
+
+    folder = os.path.abspath(folder or ".")
+    while not os.path.isdir(folder):
+        parent = os.path.dirname(folder)
+        if parent == folder:
+            return None
+        folder = parent
+    try:
+        return shutil.disk_usage(folder).free
+    except OSError:
+        return None
+
+
+def size_text(n: int | None) -> str:
+    """A byte count for a message: "512 B", "12.3 kB", "1.2 GB"; "an unknown amount" for None."""
+    if n is None:
+        return "an unknown amount"
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} B"
+
+
+def check_free_space(sizes: Mapping[str, int]) -> None:
+    """Refuse (:class:`RenderError`, one line) before rendering when the outputs (path: largest
+    size in bytes, see :func:`estimate_file_bytes`) cannot fit in the space free on their disks
+    (outputs on one disk are added up; a file replaced still needs its new copy in full, the
+    write being atomic). Disks whose free space is unknown are not checked."""
+    by_disk: dict[object, list[str]] = {}
+    free: dict[object, int | None] = {}
+    for path in sizes:
+        folder = os.path.dirname(os.path.abspath(_target(os.fspath(path))))
+        existing = folder
+        while not os.path.isdir(existing) and os.path.dirname(existing) != existing:
+            existing = os.path.dirname(existing)
+        try:
+            disk = os.stat(existing).st_dev
+        except OSError:
+            continue
+        by_disk.setdefault(disk, []).append(path)
+        free[disk] = free_bytes(existing)
+    for disk, paths in by_disk.items():
+        need = sum(sizes[p] for p in paths)
+        if free[disk] is not None and need > free[disk]:
+            names = ", ".join(os.fspath(p) for p in paths)
+            raise RenderError(f"{names}: need{'s' if len(paths) == 1 else ''} up to {size_text(need)} of disk space, "
+                              f"but only {size_text(free[disk])} is free there; free some space or write elsewhere")
 
 
 TEMP_SUFFIX = ".partial"
@@ -168,6 +266,8 @@ def _atomic_write(path: str, write) -> None:
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{name}.{os.getpid()}.", suffix=TEMP_SUFFIX, dir=folder)
     except OSError as e:
+        if e.errno in DISK_ERRORS:
+            raise _write_error(path, folder, e) from None
         raise RenderError(f"{path}: cannot be written: cannot create a file in {folder!r} "
                           f"({e.strerror or e})") from None
     os.close(fd)
@@ -184,14 +284,36 @@ def _atomic_write(path: str, write) -> None:
             # mkstemp creates the file private (0600); give a new image the permissions a plain
             # open() would (0666 less the umask), as users of image files expect
             os.chmod(tmp, 0o666 & ~_umask())
-        write(tmp)
-        os.replace(tmp, target)
+        try:
+            write(tmp)
+            os.replace(tmp, target)
+        except (OSError, RuntimeError) as e:  # (OpenEXR reports a failed write as a RuntimeError)
+            try:
+                os.unlink(tmp)  # (first: the free space reported is what is left without it)
+            except OSError:
+                pass
+            raise _write_error(path, folder, e) from None
     except BaseException:
         try:
             os.unlink(tmp)
         except OSError:
             pass
         raise
+
+
+# errno values of a write that failed for lack of room or a faulty disk (the folder was writable)
+DISK_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EFBIG, errno.EROFS}
+
+
+def _write_error(path: str, folder: str, e: BaseException) -> WriteError:
+    """A failed write as one line naming the output and the space left on its disk."""
+    reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+    for code in sorted(DISK_ERRORS):  # a library's long message that holds a system error: that error
+        if os.strerror(code) in reason:
+            reason = os.strerror(code)
+            break
+    free = free_bytes(folder)
+    return WriteError(f"{path}: cannot be written: {reason} ({size_text(free)} free on its disk)", path, free)
 
 
 def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None) -> None:
@@ -202,8 +324,24 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
     layer: warprt's AOVs under the channel names of ``aov.EXR_CHANNELS`` (``Z`` depth, ``A``
     coverage, ``N.X``..., ids as UINT holding id + 1), other layers as ``layer.X`` / ``layer.Y`` /
     ``layer.Z`` (``layer.V`` for one channel); a PNG holds the colour.
+
+    A Ctrl-C during the write is held until the file is complete (then raised); a second one
+    abandons it. A full disk, quota or I/O error raises :class:`warprt.errors.WriteError`.
     """
-    path = os.fspath(path)
+    with Deferred(abandon_on=2, deliver=True):
+        _save_image(image, path, metadata)
+
+
+def _check_path(path, what: str = "an image path") -> str:
+    if not isinstance(path, (str, os.PathLike)):
+        raise RenderError(f"expected {what} (str or os.PathLike), got {type(path).__name__}")
+    return os.fspath(path)
+
+
+def _save_image(image, path, metadata) -> None:
+    path = _check_path(path)
+    if metadata is not None and not isinstance(metadata, Mapping):
+        raise RenderError(f"{path}: metadata must be a dict of name: value, got {type(metadata).__name__}")
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
         raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
@@ -246,6 +384,30 @@ def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | 
     write_exr(path, channels, metadata)
 
 
+def save_image_or_fallback(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None,
+                           folder: str | None = None) -> None:
+    """:func:`save_image`; when the write fails on a full disk, quota or I/O error, write the
+    image to ``folder`` (default: the system's temporary folder) under a fresh name instead and
+    raise the :class:`WriteError` with ``fallback`` set and the message saying where it went."""
+    try:
+        save_image(image, path, metadata)
+    except WriteError as e:
+        folder = folder or tempfile.gettempdir()
+        stem, ext = os.path.splitext(os.path.basename(os.fspath(path)))
+        try:
+            fd, fallback = tempfile.mkstemp(prefix=f"{stem}.", suffix=ext, dir=folder)
+            os.close(fd)
+            try:
+                save_image(image, fallback, metadata)
+            except BaseException:
+                os.unlink(fallback)
+                raise
+        except (OSError, RenderError) as f:
+            raise WriteError(f"{e}; the image could not be written to {folder} either "
+                             f"({f.strerror if isinstance(f, OSError) and f.strerror else f})", e.path, e.free) from None
+        raise WriteError(f"{e}; the image was written to {fallback} instead", e.path, e.free, fallback) from None
+
+
 def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str, object] | None = None) -> None:
     """Write named channels/layers to one EXR file (``RGB`` is the colour): float32, or UINT for
     uint32 arrays."""
@@ -265,7 +427,8 @@ def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str
         with OpenEXR.File(header, channels) as f:
             f.write(p)
 
-    _atomic_write(path, write)
+    with Deferred(abandon_on=2, deliver=True):  # (as save_image: a Ctrl-C waits for the file)
+        _atomic_write(path, write)
 
 
 def read_exr(path: str | os.PathLike, layers: bool = False):
@@ -274,9 +437,22 @@ def read_exr(path: str | os.PathLike, layers: bool = False):
     the same names, shapes and dtypes as ``render(..., aovs=...)`` returns)."""
     import OpenEXR
 
-    with OpenEXR.File(os.fspath(path), separate_channels=True) as f:
-        header = dict(f.header())
-        ch = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    path = _check_path(path, "an EXR file path")
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except OSError as e:
+        raise RenderError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if magic != EXR_MAGIC:  # (checked here: OpenEXR would print its own error line as well)
+        raise RenderError(f"{path}: not an OpenEXR file")
+    try:
+        with OpenEXR.File(path, separate_channels=True) as f:
+            header = dict(f.header())
+            ch = {name: np.asarray(c.pixels) for name, c in f.channels().items()}
+    except RuntimeError as e:
+        raise RenderError(f"{path}: cannot be read as an OpenEXR image ({e})") from None
+    if not all(c in ch for c in "RGB"):
+        raise RenderError(f"{path}: holds no R, G, B channels (channels: {', '.join(sorted(ch))})")
     rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], axis=-1)
     if not layers:
         return rgb, header

@@ -104,13 +104,26 @@ def as_points(points, count: int, device) -> "np.ndarray | object":
     """Validate new vertex positions: (count, 3) numbers, or a wp.array of vec3 on ``device``."""
     if isinstance(points, wp.array):
         if points.dtype != wp.vec3 or points.shape != (count,):
-            raise RenderError(f"points must be a wp.array of {count} vec3, got {points.dtype} {points.shape}")
+            raise RenderError(f"points must be a wp.array of {count} vec3, got "
+                              f"{getattr(points.dtype, '__name__', points.dtype)} {points.shape}")
         if points.device != device:
             raise RenderError(f"points are on {points.device}, the scene on {device}")
+        from .checks import check_points
+
+        check_points(points)  # on the device: NaN, Inf or huge coordinates named, not rendered
         return points
-    p = np.asarray(points, dtype=np.float32)
-    if p.shape != (count, 3):
-        raise RenderError(f"points must have shape ({count}, 3), got {p.shape}")
-    if not np.isfinite(p).all():
-        raise RenderError("points must be finite (NaN or Inf found)")
-    return p
+    if isinstance(points, (str, bytes)) or points is None:
+        raise RenderError(f"points must be ({count}, 3) numbers or a wp.array of vec3, got {points!r:.60}")
+    try:
+        p64 = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RenderError(f"points must be ({count}, 3) numbers, got {type(points).__name__}") from None
+    if p64.shape != (count, 3):
+        raise RenderError(f"points must have shape ({count}, 3), got {p64.shape}")
+    from .checks import VERTEX_LIMIT, describe_point
+
+    bad = ~np.isfinite(p64).all(axis=1) | (np.abs(np.nan_to_num(p64)) > VERTEX_LIMIT).any(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise RenderError(f"points[{i}]: {describe_point(p64[i], limit=VERTEX_LIMIT)}")
+    return p64.astype(np.float32)

@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from .errors import SceneError
+from .checks import check_bodies
+from .errors import RenderError, SceneError
 from .scene.description import (
     Box, Camera, Capsule, Cylinder, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere,
 )
@@ -63,6 +64,21 @@ def _check_newton_enums() -> None:
                              f"expects {value}: install newton==1.8.0", "model")
     if int(newton.ShapeFlags.VISIBLE) != _VISIBLE:
         raise SceneError("this Newton's ShapeFlags.VISIBLE differs from 1.8's", "model")
+
+
+MODEL_ARRAYS = ("shape_type", "shape_world", "shape_flags", "shape_scale", "shape_body", "shape_transform")
+
+
+def check_model(model) -> None:
+    """``model`` is a finalised Newton model (``ModelBuilder.finalize()``), else a SceneError
+    naming what it is."""
+    missing = [a for a in (*MODEL_ARRAYS, "world_count", "body_count", "device") if not hasattr(model, a)]
+    if missing:
+        kind = "a newton.ModelBuilder (call .finalize() first)" if hasattr(model, "finalize") else type(model).__name__
+        raise SceneError(f"expected a newton.Model (ModelBuilder.finalize()), got {kind}", "model")
+    for name in MODEL_ARRAYS:
+        if not isinstance(getattr(model, name), wp.array):
+            raise SceneError(f"expected a wp.array, got {type(getattr(model, name)).__name__}", f"model.{name}")
 
 
 def _mesh_of(kind: int, scale, source, index: int):
@@ -128,6 +144,7 @@ def scene_from_model(model, camera: Camera | None = None, lights=None, ambient=0
     """A warprt scene of one Newton world (plus the global shapes) and the map from its shapes to
     Newton's shapes in every world. ``lights`` default to Newton's default light (directional,
     along (-1, 1, -1)/√3, intensity 1)."""
+    check_model(model)
     _check_newton_enums()
     types = model.shape_type.numpy()
     worlds = model.shape_world.numpy()
@@ -177,20 +194,39 @@ class NewtonRenderer:
     (its pose is the default of every camera); ``lights``/``ambient``/``background`` as in
     :func:`scene_from_model`; ``motion_blur=True`` blurs between the previous and the current
     state (call :meth:`update` every step). Soft shadows come from area lights in ``lights``,
-    depth of field from the camera's aperture.
+    depth of field from the camera's aperture. ``check_inputs``: every :meth:`update` checks, on
+    the device, the poses of the bodies that carry shapes (finite, unit quaternions: an exploded
+    simulation is named by body and world, see ``warprt.checks``), and every render the camera
+    arrays; False skips both once the pipeline trusts its simulation.
     """
 
     def __init__(self, model, cameras: int = 1, camera: Camera | None = None, lights=None, ambient=0.0,
                  background=(0.0, 0.0, 0.0), render: RenderSettings | None = None, motion_blur: bool = False,
-                 device: str | None = None):
+                 device: str | None = None, check_inputs: bool = True):
+        check_model(model)
         self.model = model
         self.scene, self.shape_map = scene_from_model(model, camera, lights, ambient, background, render)
         self.batch = BatchRenderer(self.scene, worlds=self.shape_map.newton_shape.shape[0], cameras=cameras,
                                    device=device if device is not None else str(model.device),
-                                   motion_blur=motion_blur)
+                                   motion_blur=motion_blur, check_inputs=check_inputs)
         dev = self.batch.device
         self._map = wp.array(self.shape_map.newton_shape, dtype=wp.int32, device=dev)
         self._updates = 0
+        # the bodies whose poses place a rendered shape (checked every update)
+        body = model.shape_body.numpy()[self.shape_map.newton_shape.reshape(-1)] if self.scene.shapes else []
+        used = np.unique(np.asarray(body, np.int64))
+        self._bodies = wp.array(used[used >= 0].astype(np.int32), dtype=wp.int32, device=dev)
+        self._body_labels = list(getattr(model, "body_label", None) or [])
+        self._body_worlds = model.body_world.numpy() if isinstance(getattr(model, "body_world", None), wp.array) \
+            else None
+
+    @property
+    def check_inputs(self) -> bool:
+        return self.batch.check_inputs
+
+    @check_inputs.setter
+    def check_inputs(self, value: bool) -> None:
+        self.batch.check_inputs = bool(value)
 
     @property
     def counters(self) -> dict:
@@ -200,6 +236,17 @@ class NewtonRenderer:
         """Shape poses from ``state.body_q`` (on the device; the previous ones become the
         shutter-open poses when motion blur is on)."""
         b = self.batch
+        body_q = getattr(state, "body_q", None)
+        if not isinstance(body_q, wp.array) or body_q.dtype != wp.transform or body_q.ndim != 1:
+            got = type(body_q).__name__ if not isinstance(body_q, wp.array) else \
+                f"{getattr(body_q.dtype, '__name__', body_q.dtype)} {tuple(body_q.shape)}"
+            raise RenderError(f"state.body_q: expected a wp.array of wp.transform (a newton.State), got {got}")
+        if body_q.device != b.device:
+            raise RenderError(f"state.body_q is on {body_q.device}, the renderer on {b.device}")
+        if self.check_inputs:
+            if getattr(self, "_check_answer", None) is None:
+                self._check_answer = wp.zeros(2, dtype=int, device=b.device)
+            check_bodies(body_q, self._bodies, b.device, self._body_labels, self._body_worlds, self._check_answer)
         if b.motion_blur:
             wp.copy(b.shape_poses, b.shape_poses_end if self._updates else b.shape_poses)
             target = b.shape_poses_end
@@ -207,7 +254,7 @@ class NewtonRenderer:
             target = b.shape_poses
         if self.scene.shapes:
             wp.launch(_shape_poses, dim=self._map.shape, device=b.device,
-                      inputs=[self._map, self.model.shape_body, self.model.shape_transform, state.body_q, target])
+                      inputs=[self._map, self.model.shape_body, self.model.shape_transform, body_q, target])
         if b.motion_blur and not self._updates:
             wp.copy(b.shape_poses, target)
         self._updates += 1

@@ -23,6 +23,7 @@ from .errors import RenderError
 from .records import KIND_NONE, CameraData, Features, SceneData
 from .sampling import SAMPLER_IDS, sample_1d, sample_2d
 from .scene.description import Scene
+from .scene.values import FLT_MAX
 from .trace import make_trace
 
 
@@ -71,6 +72,46 @@ def _query_kernels() -> dict:
     return {"camera": camera_kernel, "trace": trace_kernel, "samples": samples_kernel, "samples_1d": samples_1d_kernel}
 
 
+def _rows(values, name: str, columns: int, what: str) -> np.ndarray:
+    """``values`` as an (N, columns) float32 array of finite numbers within float32's range
+    (one row may be given alone), else a RenderError naming ``name``."""
+    if isinstance(values, (str, bytes)) or values is None or isinstance(values, wp.array):
+        raise RenderError(f"{name}: expected {what} shaped (N, {columns}) (numpy or a list), got {values!r:.60}")
+    try:
+        a = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RenderError(f"{name}: expected numbers shaped (N, {columns}) ({what}), got {type(values).__name__}") \
+            from None
+    if a.ndim == 1 and a.shape[0] == columns:
+        a = a[None]
+    if a.ndim != 2 or a.shape[1] != columns:
+        raise RenderError(f"{name}: expected {what} shaped (N, {columns}), got shape {a.shape}")
+    bad = ~np.isfinite(a).all(axis=1) | (np.abs(np.nan_to_num(a)) > FLT_MAX).any(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise RenderError(f"{name}[{i}]: {tuple(float(x) for x in a[i])} is not finite in float32")
+    return a.astype(np.float32)
+
+
+def _number(value, name: str, *, minimum: float | None = None, infinite: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise RenderError(f"{name} must be a number, got {value!r:.60}")
+    value = float(value)
+    if np.isnan(value) or (np.isinf(value) and not (infinite and value > 0)):
+        raise RenderError(f"{name} must be finite, got {value}")
+    if minimum is not None and value < minimum:
+        raise RenderError(f"{name} must be >= {minimum:g}, got {value:g}")
+    return value
+
+
+def _integer(value, name: str, minimum: int, maximum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum or (
+            maximum is not None and value > maximum):
+        bounds = f"from {minimum}" + (f" to {maximum}" if maximum is not None else "")
+        raise RenderError(f"{name} must be an integer {bounds}, got {value!r:.60}")
+    return int(value)
+
+
 def _built(scene, device) -> DeviceScene:
     """A built scene: a Scene is built on ``device``; a Renderer (anything holding a built
     scene as ``.built``) lends its own."""
@@ -78,7 +119,7 @@ def _built(scene, device) -> DeviceScene:
     if isinstance(built, DeviceScene):
         return built
     if not isinstance(scene, Scene):
-        raise RenderError(f"expected a warprt.Scene or Renderer, got {type(scene).__name__}")
+        raise RenderError(f"trace_rays expects a warprt.Scene or Renderer, got {type(scene).__name__}")
     return DeviceScene(scene, _warp.resolve_device(device))
 
 
@@ -90,14 +131,27 @@ def camera_rays(scene: Scene, points=None, lens=None, time: float = 0.0, device:
     ``lens`` are (N, 2) lens samples in [0, 1)^2 (ignored by a pinhole camera).
     """
     _warp.init()
+    if not isinstance(scene, Scene):
+        scene = getattr(scene, "scene", None) if isinstance(getattr(scene, "built", None), DeviceScene) else scene
+        if not isinstance(scene, Scene):
+            raise RenderError(f"camera_rays expects a warprt.Scene or Renderer, got {type(scene).__name__}")
     dev = _warp.resolve_device(device)
     cam = scene.camera
+    time = _number(time, "time")
     if points is None:
         jj, ii = np.mgrid[0:cam.height, 0:cam.width]
         points = np.stack([ii.ravel() + 0.5, jj.ravel() + 0.5], axis=1)
-    points = np.asarray(points, dtype=np.float32).reshape(-1, 2)
+    points = _rows(points, "points", 2, "raster points (x, y) in pixels")
     n = len(points)
-    lens = np.full((n, 2), 0.5, np.float32) if lens is None else np.asarray(lens, np.float32).reshape(n, 2)
+    if lens is None:
+        lens = np.full((n, 2), 0.5, np.float32)
+    else:
+        lens = _rows(lens, "lens", 2, "lens samples in [0, 1)^2")
+        if len(lens) != n:
+            raise RenderError(f"lens: {len(lens)} samples for {n} points")
+        if (lens < 0).any() or (lens > 1).any():
+            i = int(np.argmax(((lens < 0) | (lens > 1)).any(axis=1)))
+            raise RenderError(f"lens[{i}]: {tuple(float(x) for x in lens[i])} is outside [0, 1]^2")
     camera_kernel = _query_kernels()["camera"]
     origins = wp.zeros(n, dtype=wp.vec3, device=dev)
     dirs = wp.zeros(n, dtype=wp.vec3, device=dev)
@@ -118,16 +172,21 @@ def trace_rays(scene, origins, directions, t_min: float = 0.0, t_max: float = np
     light's own surface).
     """
     _warp.init()
-    built = _built(scene, device)
-    dev = built.device
-    o = np.asarray(origins, dtype=np.float32).reshape(-1, 3)
-    d = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
+    t_min = _number(t_min, "t_min", minimum=0.0)
+    t_max = _number(t_max, "t_max", infinite=True)
+    if not t_max > t_min:
+        raise RenderError(f"t_max ({t_max:g}) must exceed t_min ({t_min:g})")
+    time = _number(time, "time")
+    o = _rows(origins, "origins", 3, "ray origins (x, y, z)")
+    d = _rows(directions, "directions", 3, "ray directions (x, y, z)")
     if o.shape != d.shape:
         raise RenderError(f"origins and directions differ in shape: {o.shape} vs {d.shape}")
-    if not (np.isfinite(o).all() and np.isfinite(d).all()):
-        raise RenderError("origins and directions must be finite")
-    if (np.linalg.norm(d, axis=1) == 0).any():
-        raise RenderError("every direction must be non-zero")
+    zero = np.einsum("ij,ij->i", d.astype(np.float64), d.astype(np.float64)) < np.finfo(np.float32).tiny
+    if zero.any():
+        raise RenderError(f"directions[{int(np.argmax(zero))}]: every direction must be non-zero (and its squared "
+                          "length a normal float32)")
+    built = _built(scene, device)
+    dev = built.device
     n = len(o)
     trace_kernel = _query_kernels()["trace"]
     out = [wp.zeros(n, dtype=t, device=dev) for t in (float, wp.vec3, wp.vec3, wp.vec3, int, int)]
@@ -163,11 +222,27 @@ def pixel_samples_1d(sampler: str, pixels, spp: int, dim: int = 2, seed: int = 0
 
 
 def _pixel_samples(kernel, dtype, sampler, pixels, spp, dim, seed, count, device) -> np.ndarray:
-    if sampler not in SAMPLER_IDS:
+    from .render import check_seed
+    from .scene.description import SPP_LIMIT
+
+    if not isinstance(sampler, str) or sampler not in SAMPLER_IDS:
         raise RenderError(f"unknown sampler {sampler!r}; expected one of {', '.join(SAMPLER_IDS)}")
+    spp = _integer(spp, "spp", 1, SPP_LIMIT)
+    dim = _integer(dim, "dim", 0, (1 << 32) - 1)
+    check_seed(seed)
+    count = spp if count is None else _integer(count, "count", 1)
     dev = _warp.resolve_device(device)
-    pix = np.atleast_1d(np.asarray(pixels, dtype=np.int32))
-    count = spp if count is None else count
+    if isinstance(pixels, (str, bytes)) or pixels is None:
+        raise RenderError(f"pixels: expected pixel indices (integers), got {pixels!r:.60}")
+    try:
+        pix = np.atleast_1d(np.asarray(pixels))
+    except (TypeError, ValueError):
+        raise RenderError(f"pixels: expected pixel indices (integers), got {type(pixels).__name__}") from None
+    if pix.ndim != 1 or (pix.size and not np.issubdtype(pix.dtype, np.integer)):
+        raise RenderError(f"pixels: expected a 1-D list of integer pixel indices, got {pix.dtype} {pix.shape}")
+    if pix.size and (pix.min() < 0 or pix.max() > np.iinfo(np.int32).max):
+        raise RenderError(f"pixels: indices must be in [0, 2^31 - 1], found {int(pix.min())}..{int(pix.max())}")
+    pix = pix.astype(np.int32)
     out = wp.zeros((len(pix), count), dtype=dtype, device=dev)
     wp.launch(_query_kernels()[kernel], dim=(len(pix), count), device=dev,
               inputs=[SAMPLER_IDS[sampler], wp.uint32(seed & 0xFFFFFFFF), wp.array(pix, dtype=int, device=dev),

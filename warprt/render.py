@@ -47,6 +47,7 @@ from .trace import PACKET
 from .memory import check_memory
 from .records import Features
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
+from .signals import Deferred
 
 
 SEED_LIMIT = 1 << 32  # seeds are 32-bit: 0 <= seed < 2^32
@@ -74,6 +75,38 @@ class RenderResult:
     interrupted: bool = False  # stopped by Ctrl-C
     relative_error: float | None = None  # estimated relative standard error of the mean
     aovs: dict = field(default_factory=dict)  # requested AOVs (see warprt.aov), averaged over the image's samples
+    # what reproduces the image bit for bit (see ``reproduction``): the sample count the sampler's
+    # pattern was laid out for (``render(planned_spp=...)``), the samples of each pass in order,
+    # and why the passes stopped before ``planned_spp`` ("time_budget", "target_error",
+    # "interrupt"; None when they ran to the end)
+    planned_spp: int = 0
+    passes: tuple = ()
+    stopped_by: str | None = None
+    seed: int = 0
+    sampler: str = ""
+    adaptive: bool = False
+
+    def reproduction(self) -> dict:
+        """What reproduces this image bit for bit, as image metadata (``warprt_*`` keys; the CLI
+        writes them into every file): seed, sampler, samples per pixel, the pattern's planned
+        count, the pass sizes (they never change the image) and why it stopped; with
+        ``warprt_reproduce`` the ``warprt render`` options that give the same bits from the same
+        scene file (``--spp N --planned-spp P --seed S`` for an image stopped by a time budget,
+        a target error or Ctrl-C)."""
+        meta = {"warprt_spp": self.spp, "warprt_seed": self.seed, "warprt_sampler": self.sampler,
+                "warprt_planned_spp": self.planned_spp,
+                "warprt_passes": "+".join(str(p) for p in self.passes),
+                "warprt_interrupted": int(self.interrupted)}
+        if self.stopped_by:
+            meta["warprt_stopped_by"] = self.stopped_by
+        if not self.adaptive:  # (an adaptive image stopped part way depends on its counts too)
+            args = f"--spp {self.spp}"
+            if self.planned_spp != self.spp:
+                args += f" --planned-spp {self.planned_spp}"
+            meta["warprt_reproduce"] = f"{args} --seed {self.seed} --sampler {self.sampler}"
+        elif not self.stopped_by:
+            meta["warprt_reproduce"] = f"--spp {self.planned_spp} --adaptive --seed {self.seed} --sampler {self.sampler}"
+        return meta
 
     @property
     def mrays_per_s(self) -> float:
@@ -192,42 +225,13 @@ class WorkerPool:
             pool.shutdown(wait=False)
 
 
-class _CtrlC:
-    """Ctrl-C during the pass loop, race-free: while the block runs, a SIGINT handler that only
-    sets ``pressed`` (read by the loop after each pass) replaces Python's default one, so no
-    KeyboardInterrupt can arrive between a pass and its bookkeeping and lose the samples. Installed
-    only from the main thread and only over Python's default handler (a handler of the host
-    application, or an ignored SIGINT, is left alone); the previous handler is restored on exit."""
-
-    def __init__(self):
-        self.pressed = False
-        self._previous = None
-
-    def _handler(self, signum, frame):
-        self.pressed = True
-
-    def is_set(self) -> bool:
-        """Ctrl-C seen (so that the block can be handed to ``Renderer.render(stop=...)``)."""
-        return self.pressed
-
-    def __enter__(self):
-        import signal
-
-        if threading.current_thread() is threading.main_thread():
-            try:
-                if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-                    self._previous = signal.signal(signal.SIGINT, self._handler)
-            except (ValueError, OSError):  # not the main interpreter
-                self._previous = None
-        return self
-
-    def __exit__(self, *exc):
-        import signal
-
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
-            self._previous = None
-        return False
+class _CtrlC(Deferred):
+    """Ctrl-C during the pass loop, race-free: while the block runs, a SIGINT (and, in the command
+    line, a SIGTERM) only sets ``pressed``, read by the loop after each pass, so no
+    KeyboardInterrupt can arrive between a pass and its bookkeeping and lose the samples
+    (:class:`warprt.signals.Deferred`: installed only from the main thread and only over Python's
+    default handler or the command line's; a host application's handler, or an ignored SIGINT,
+    is left alone; the previous handler is restored on exit)."""
 
 
 class Renderer:
@@ -246,6 +250,10 @@ class Renderer:
             raise RenderError(f"render() needs a warprt.Scene, got {type(scene).__name__}")
         if packets is not None and not isinstance(packets, bool):
             raise RenderError(f"packets must be True, False or None (the device's choice), got {packets!r}")
+        if features is not None and not isinstance(features, Features):
+            raise RenderError(f"features must be a warprt.Features (e.g. Features.full()), got {features!r:.60}")
+        if device is not None and not isinstance(device, str) and not hasattr(device, "is_cpu"):
+            raise RenderError(f"device must be a name such as 'cpu' or 'cuda:0', got {device!r:.60}")
         self.device = _warp.resolve_device(device)
         #: camera rays in packets (the CPU's default) or one by one (CUDA's): the same images
         self.packets = packets_for(self.device) if packets is None else packets
@@ -283,6 +291,10 @@ class Renderer:
 
     def set_camera(self, camera) -> None:
         """Replace the camera (same or different resolution); no rebuild of anything else."""
+        from .scene.description import Camera
+
+        if not isinstance(camera, Camera):
+            raise RenderError(f"set_camera() needs a warprt.Camera, got {type(camera).__name__}")
         self.scene = self.scene.replace(camera=camera)
         self.built.scene = self.scene
         self.built.camera = camera_data(self.scene)
@@ -411,7 +423,8 @@ class Renderer:
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
                slices: int | None = None, pass_spp: int | None = None, time_budget: float | None = None,
                target_error: float | None = None, progress: bool | None = None,
-               aovs=None, as_warp: bool = False, stop=None, adaptive: bool = False) -> RenderResult:
+               aovs=None, as_warp: bool = False, stop=None, adaptive: bool = False,
+               planned_spp: int | None = None) -> RenderResult:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
         passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
         (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``coverage``, ``object_id``,
@@ -430,7 +443,12 @@ class Renderer:
         its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps every
         sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean count.
         At 1 spp it renders uniformly; it does not combine with ``time_budget`` or
-        ``target_error``."""
+        ``target_error``. ``planned_spp`` (default ``spp``): the sample count the sampler lays its
+        pattern out for (the ``stratified`` grid, the ``regular`` centres, the shutter's
+        intervals); the first ``spp`` of those samples are run. A render stopped early (time
+        budget, target error, Ctrl-C) holds the first N samples of its planned pattern, so
+        ``render(spp=N, planned_spp=P, seed=S)`` gives it again bit for bit
+        (``RenderResult.reproduction``)."""
         spp = self.scene.render.spp if spp is None else spp
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
@@ -439,12 +457,23 @@ class Renderer:
         check_seed(seed)
         if slices is not None and (isinstance(slices, bool) or not isinstance(slices, (int, np.integer)) or slices < 1):
             raise RenderError(f"slices must be a positive integer, got {slices!r}")
-        if time_budget is not None and not (time_budget > 0):
-            raise RenderError(f"time_budget must be positive seconds, got {time_budget!r}")
-        if target_error is not None and not (target_error > 0):
-            raise RenderError(f"target_error must be positive, got {target_error!r}")
+        for name, value in (("time_budget", time_budget), ("target_error", target_error)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float, np.integer,
+                                                                                           np.floating))
+                                      or not value > 0):
+                raise RenderError(f"{name} must be a positive number{' of seconds' if name == 'time_budget' else ''}, "
+                                  f"got {value!r}")
+        if stop is not None and not callable(getattr(stop, "is_set", None)):
+            raise RenderError(f"stop must be an event with is_set() (e.g. threading.Event), got {stop!r:.60}")
         if pass_spp is not None and (not isinstance(pass_spp, (int, np.integer)) or pass_spp < 1):
             raise RenderError(f"pass_spp must be a positive integer, got {pass_spp!r}")
+        if planned_spp is not None:
+            if isinstance(planned_spp, bool) or not isinstance(planned_spp, (int, np.integer)) or planned_spp < spp:
+                raise RenderError(f"planned_spp must be an integer >= spp ({spp}), got {planned_spp!r}")
+            if planned_spp > SPP_LIMIT:
+                raise RenderError(f"planned_spp must be <= {SPP_LIMIT} (2^20), got {planned_spp}")
+            if adaptive:
+                raise RenderError("planned_spp does not combine with adaptive sampling (its counts come from spp)")
         aovs = check_aov_names(aovs) if aovs else []
         check_memory(self.scene.camera.width, self.scene.camera.height, aovs, formats=(),
                      film_on_host=self.device.is_cpu)  # before anything is allocated or compiled
@@ -482,8 +511,11 @@ class Renderer:
                 with ctrl_c:
                     planned = int(spp)
                     interrupted = False
-                    params = render_params(self.scene, int(spp), int(seed), self.built.features)
+                    pattern = int(spp if planned_spp is None else planned_spp)
+                    params = render_params(self.scene, pattern, int(seed), self.built.features)
                     done, rel_err = 0, None
+                    passes: list[int] = []
+                    run["passes"] = passes
                     if adaptive and spp >= ADAPTIVE_MIN_SPP:
                         # the pilot: the first n0 samples of every pixel, which then decide the other
                         # pixels' counts (never their own, see film.adaptive_counts) and stay in the image
@@ -511,16 +543,25 @@ class Renderer:
                                     int(workers)) if aovs else {}
             # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
             spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
+            stopped_by = None
+            if interrupted:
+                stopped_by = "interrupt"
+            elif done < planned:
+                stopped_by = "time_budget" if time_budget is not None and (
+                    target_error is None or rel_err is None or rel_err > target_error) else "target_error"
             return RenderResult(image=image, spp=spp_done, wall_time=wall, rays=film.rays(),
                                 stack_overflows=film.overflows() if self.features.secondary else 0,  # (no stack: none)
                                 features=self.features,
-                                device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps)
+                                device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps,
+                                planned_spp=pattern, passes=tuple(passes), stopped_by=stopped_by, seed=int(seed),
+                                sampler=self.scene.render.sampler, adaptive=bool(adaptive and spp >= ADAPTIVE_MIN_SPP))
         finally:
             if held:
                 self._film_lock.release()
 
     def _passes(self, film: Film, params, start: int, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error,
-                *, workers: int, n_slices: int | None, pass_spp, stop) -> tuple[int, bool, float | None]:
+                *, workers: int, n_slices: int | None, pass_spp, stop,
+                passes: list | None = None) -> tuple[int, bool, float | None]:
         """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
         early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
         relative error or None). The renderer's first pass is one sample (to time one); every
@@ -605,6 +646,8 @@ class Renderer:
                 interrupted = True
             wp.synchronize_device(dev)
             done += size
+            if passes is not None:
+                passes.append(size)
             elapsed = _time.perf_counter() - t_start
             if work_at[done] > work_at[start]:
                 self._sample_time[timing] = elapsed / (work_at[done] - work_at[start])

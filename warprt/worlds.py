@@ -46,6 +46,7 @@ from . import _warp
 from ._warp import build_once
 from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
+from .checks import EXTENT_LIMIT, check_batch, describe_transform
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
 from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_names, id_map, shaped
@@ -367,9 +368,17 @@ class BatchRenderer:
     """
 
     def __init__(self, scene: Scene, worlds: int = 1, cameras: int = 1, device: str | None = None,
-                 motion_blur: bool = False, features: Features | None = None):
+                 motion_blur: bool = False, features: Features | None = None, check_inputs: bool = True):
         if not isinstance(scene, Scene):
             raise RenderError(f"BatchRenderer needs a warprt.Scene, got {type(scene).__name__}")
+        if features is not None and not isinstance(features, Features):
+            raise RenderError(f"features must be a warprt.Features, got {type(features).__name__}")
+        for name, value in (("motion_blur", motion_blur), ("check_inputs", check_inputs)):
+            if not isinstance(value, (bool, np.bool_)):
+                raise RenderError(f"{name} must be True or False, got {value!r:.60}")
+        #: check the pose arrays, light positions and fields of view on the device before each
+        #: render (warprt.checks); False once a pipeline trusts what it writes there
+        self.check_inputs = bool(check_inputs)
         self.worlds = _positive_int(worlds, "worlds")
         self.cameras = _positive_int(cameras, "cameras")
         _warp.init()
@@ -418,6 +427,8 @@ class BatchRenderer:
                         for light in lights] or [(0.0, 0.0, 0.0)], np.float32)
         self.light_positions = wp.array(np.repeat(pos[None], W, axis=0), dtype=wp.vec3, device=dev)
         self._n_shapes, self._n_lights = S, len(lights)
+        self._directional_lights = [int(isinstance(light, DirectionalLight)) for light in lights]
+        self._light_index = [i for i, light in enumerate(scene.lights) if isinstance(light, (PointLight, DirectionalLight))]
         eye1, look1 = cam.pose(1.0)
         t0 = np.concatenate([cam.eye, camera_quaternion(cam.eye, cam.look_at, cam.up)])
         t1 = np.concatenate([eye1, camera_quaternion(eye1, look1, cam.up)])
@@ -483,16 +494,28 @@ class BatchRenderer:
                 return out
             raise RenderError(f"{name}: expected a wp.array of wp.transform or wp.mat44 shaped {shape}, "
                               f"got {values.dtype.__name__} {tuple(values.shape)}")
-        a = np.asarray(values, dtype=np.float64)
+        if isinstance(values, (str, bytes)) or values is None:
+            raise RenderError(f"{name}: expected poses shaped {shape + (7,)} (position, quaternion x y z w) or "
+                              f"{shape + (4, 4)} (matrices), a numpy array or a wp.array, got {values!r:.60}")
+        try:
+            a = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise RenderError(f"{name}: expected numbers shaped {shape + (7,)} (position, quaternion x y z w) or "
+                              f"{shape + (4, 4)} (matrices), got {type(values).__name__}") from None
         if a.shape == shape + (4, 4):
             a = _rigid_from_matrices(a, name)
-        if a.shape != shape + (7,) or not np.isfinite(a).all():
-            raise RenderError(f"{name}: expected finite values shaped {shape + (7,)} (position, quaternion x y z w) "
+        if a.shape != shape + (7,):
+            raise RenderError(f"{name}: expected values shaped {shape + (7,)} (position, quaternion x y z w) "
                               f"or {shape + (4, 4)} (matrices), got {a.shape}")
+        bad = ~np.isfinite(a).all(axis=-1) | (np.abs(np.nan_to_num(a[..., :3])) > EXTENT_LIMIT).any(axis=-1)
+        if bad.any():
+            index = tuple(int(x) for x in np.argwhere(bad)[0])
+            raise RenderError(f"{name}[{', '.join(map(str, index))}]: {describe_transform(a[index])}")
         q = a[..., 3:]
         norms = np.linalg.norm(q, axis=-1, keepdims=True)
         if (norms == 0).any():
-            raise RenderError(f"{name}: a quaternion is zero")
+            index = tuple(int(x) for x in np.argwhere(norms[..., 0] == 0)[0])
+            raise RenderError(f"{name}[{', '.join(map(str, index))}]: a quaternion is zero")
         a = np.concatenate([a[..., :3], q / norms], axis=-1)
         self.counters["host_transfers"] += 1
         return wp.array(a.astype(np.float32), dtype=wp.transform, device=self.device)
@@ -510,6 +533,23 @@ class BatchRenderer:
         shape = (self.worlds, self.cameras)
         wp.copy(self.camera_poses, self._check_poses(poses, shape, "camera_poses"))
         wp.copy(self.camera_poses_end, self._check_poses(poses if end is None else end, shape, "camera_poses_end"))
+
+    def _check_arrays(self) -> None:
+        """The pose arrays are attributes a pipeline may replace: each must still be a wp.array
+        of its dtype and shape on this device (else a RenderError naming it, not Warp's)."""
+        W, C = self.worlds, self.cameras
+        for name, dtype, shape in (("shape_poses", wp.transform, (W, max(self._n_shapes, 1))),
+                                   ("shape_poses_end", wp.transform, (W, max(self._n_shapes, 1))),
+                                   ("camera_poses", wp.transform, (W, C)), ("camera_poses_end", wp.transform, (W, C)),
+                                   ("light_positions", wp.vec3, (W, max(self._n_lights, 1))), ("fov", float, (C,))):
+            a = getattr(self, name)
+            if not isinstance(a, wp.array) or a.dtype != (wp.float32 if dtype is float else dtype) \
+                    or tuple(a.shape) != shape or a.device != self.device or not a.is_contiguous:
+                got = (f"{getattr(a.dtype, '__name__', a.dtype)} {tuple(a.shape)} on {a.device}"
+                       if isinstance(a, wp.array) else type(a).__name__)
+                raise RenderError(f"{name}: expected a contiguous wp.array of {getattr(dtype, '__name__', dtype)} "
+                                  f"shaped {shape} on {self.device}, got {got} (write into it in place, "
+                                  "e.g. with wp.copy)")
 
     def _update_tables(self) -> None:
         pose_shapes, pose_lights, pose_cameras, world_bounds = _pose_kernels()
@@ -550,6 +590,10 @@ class BatchRenderer:
         check_seed(seed)
         workers = default_workers() if workers is None else _positive_int(workers, "workers")
         dev = self.device
+        self._check_arrays()
+        if self.check_inputs:  # NaN poses, non-unit quaternions, a zero fov: named, before rendering
+            check_batch(self, self.shape_poses_end if self.motion_blur else self.shape_poses,
+                        self.camera_poses_end if self.motion_blur or self.scene.camera.moves else self.camera_poses)
         rows = self.worlds * self.cameras * self.height
         # (None: on the CPU one launch per worker, claiming blocks of rows from the film's counter;
         # slices=N: N fixed interleaved sets of blocks)

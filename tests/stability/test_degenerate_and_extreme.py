@@ -56,6 +56,7 @@ Every render uses the all-features kernel through ``_util``; images are at most 
 from __future__ import annotations
 
 import math
+import re
 import warnings
 
 import numpy as np
@@ -302,7 +303,9 @@ def test_tiny_rectangle_is_not_an_infinite_plane(kind, size):
         camera=warprt.Camera(eye=(0, 1, 5), look_at=(0, 1, 0), fov=40, width=15, height=15), shapes=shapes,
         materials={"bright": warprt.Material(kd=0, ka=5.0), "floor": warprt.Material(kd=0.8, ka=0.25)},
         lights=lights, ambient=0.5, render=warprt.RenderSettings(sampler="regular"))
-    img = image(scene)
+    field = "shapes[1]" if kind == "shape" else "lights[0]"
+    with pytest.warns(RuntimeWarning, match=rf"{re.escape(field)} measures only {size:g} across: below about 1e-19"):
+        img = image(scene)  # (too small for float32's squared lengths: it is said)
     assert np.isfinite(img).all()
     assert (img >= 1.0).any(axis=-1).sum() <= 1, f"{(img >= 1.0).any(axis=-1).sum()} pixels see the tiny rectangle"
     floor = img[10:, :, 0]  # rows below the horizon see the floor: ambient only
@@ -772,3 +775,51 @@ def test_a_scene_beyond_1e19_warns_that_float32_distances_overflow():
         warprt.Renderer(_scaled_scene(1e18), device="cpu")
     with pytest.warns(RuntimeWarning, match=r"scene coordinates reach 5e\+19.*scale the scene down"):
         warprt.Renderer(_scaled_scene(1e19), device="cpu")
+
+
+# --- the other end of float32: scenes too small ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kw, field, words", [
+    (dict(eye=(0, 0, 0), look_at=(0, 0, 1e-30)), "look_at", "differ by a vector whose squared length underflows"),
+    (dict(eye=(1e8, 0, 0), look_at=(1e8 + 1e-3, 0, 0)), "look_at", "they are the same point"),
+    (dict(eye=(0, 0, 0), look_at=(0, 0, 1), eye_end=(0, 0, 1 + 1e-10)), "eye_end", "the same point"),
+    (dict(fov=1e-40), "fov", "below float32's normal range"),
+])
+def test_a_camera_whose_float32_frame_underflows_is_refused(kw, field, words):
+    """eye and look_at 1e-30 apart (a valid view in float64) gave an all-black image: the float32
+    frame the device computes has no viewing direction. Refused, naming the field; 1e-18 apart
+    (a squared length of 1e-36, a normal float32) still renders."""
+    with pytest.raises(warprt.SceneError) as info:
+        warprt.Camera(**kw)
+    assert info.value.field == field and words in str(info.value)
+    scene = warprt.Scene(camera=warprt.Camera(eye=(0, 0, 0), look_at=(0, 0, 1e-18), width=8, height=6),
+                         shapes=(warprt.Sphere(center=(0, 0, 5)),), lights=(warprt.PointLight(position=(0, 0, 0)),))
+    assert image(scene).max() > 0
+    with pytest.raises(warprt.SceneError, match=r"^scene.toml: camera.look_at: eye and look_at are 1e-30 apart"):
+        warprt.scene_from_string("[camera]\nlook_at = [0, 0, 1e-30]\neye = [0, 0, 0]\n", source="scene.toml")
+
+
+def test_a_scene_of_tiny_geometry_warns_that_float32_lengths_underflow():
+    """A whole mesh scene at 1e-30 (camera included, with a field of view that sees it) renders
+    black: its float32 edge products underflow. The renderer warns, naming the shape, as it warns
+    for coordinates beyond 1e19; the same scene at 1e-6 is quiet and renders."""
+    import warnings
+
+    def scene(scale):
+        v = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], float) * scale
+        return warprt.Scene(camera=warprt.Camera(eye=(0, 0, 5 * scale), look_at=(0, 0, -1), fov=30 * scale,
+                                                 width=8, height=6),
+                            shapes=(warprt.Mesh(vertices=v, faces=[[0, 1, 2]]),),
+                            lights=(warprt.PointLight(position=(0, 0, 5)),), ambient=0.2)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert image(scene(1e-6)).max() > 0
+    with pytest.warns(RuntimeWarning, match=r"shapes\[0\] measures only 2\.83e-30 across: below about 1e-19 the "
+                                            r"renderer's float32 squared lengths underflow"):
+        black = image(scene(1e-30))
+    assert black.max() == 0.0  # what the warning is about
+    with pytest.warns(RuntimeWarning, match=r"shapes\[0\] \(and 1 more\) measures only 1e-25"):
+        warprt.Renderer(warprt.Scene(shapes=(warprt.Sphere(radius=1e-25), warprt.Box(size=(1e-22, 1e-22, 1e-22)))),
+                        device="cpu")

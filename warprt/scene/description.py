@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import SceneError
 from .transform import Transform, as_transform, quaternion_product, quaternion_y_to, same_hemisphere
 from .values import (
-    RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, checked_keywords, norm,
+    FLT_MIN_NORMAL, RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, checked_keywords, norm,
     set_field,
 )
 
@@ -113,6 +113,7 @@ class Camera:
         set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("eye", "look_at")))
         for t in (0.0, 1.0):
             self.basis(t)  # raises when the view is degenerate
+        self._check_float32()
 
     @property
     def aspect(self) -> float:
@@ -134,6 +135,31 @@ class Camera:
         eye1 = np.array(self.eye_end) if self.eye_end is not None else eye0
         look1 = np.array(self.look_at_end) if self.look_at_end is not None else look0
         return eye0 + (eye1 - eye0) * time, look0 + (look1 - look0) * time
+
+    def _check_float32(self) -> None:
+        """The device computes the camera frame in float32 (``camera.camera_frame``): w from
+        eye - look_at, the image plane's half height from distance · tan(fov / 2). Refuse a camera
+        whose float64 frame is fine but whose float32 one collapses: eye and look_at closer than
+        float32 can tell apart at their magnitude (1e-30 apart at the origin, 1e-3 apart at 1e8),
+        or a half height below float32's normal range; such a camera renders black."""
+        f32 = np.float32
+        for t, (eye, look) in ((0.0, (self.eye, self.look_at)), (1.0, self.pose(1.0))):
+            d = np.asarray(eye, f32) - np.asarray(look, f32)
+            with np.errstate(under="ignore", over="ignore"):
+                d2 = np.sum(d * d, dtype=f32)
+            if not d2 >= FLT_MIN_NORMAL:  # (an overflow: the scene's extent warning, build.py)
+                gap = norm(np.subtract(eye, look))
+                field = "look_at" if t == 0.0 else ("look_at_end" if self.look_at_end is not None else "eye_end")
+                why = "are the same point" if not d.any() else "differ by a vector whose squared length underflows"
+                raise SceneError(f"eye and look_at are {gap:.3g} apart, but in float32, which the renderer computes "
+                                 f"in, they {why}: the camera has no viewing direction; move look_at further (any "
+                                 "point along the view gives the same image) or scale the scene", field)
+        with np.errstate(under="ignore"):
+            top = f32(self.distance) * f32(math.tan(math.radians(self.fov) / 2.0))
+        if not top >= FLT_MIN_NORMAL:
+            raise SceneError(f"{self.fov:g} degrees at distance {self.distance:g} gives an image plane "
+                             f"{2 * self.distance * math.tan(math.radians(self.fov) / 2):.3g} high, below float32's "
+                             "normal range (every pixel would see the same ray)", "fov")
 
     def basis(self, time: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The lecture's camera frame: w = normalize(eye - look_at), u = normalize(up x w), v = w x u."""
@@ -710,6 +736,42 @@ def scene_extent(scene: "Scene") -> float:
     return max((abs(v) for v in values), default=0.0)
 
 
+# below this a length's square underflows float32's normal range (sqrt(1.2e-38) = 1.1e-19): ray
+# tests of a shape that small (|o - c|² - r², edge cross products) lose it or give zero
+UNDERFLOW_WARNING = 1e-19
+
+
+def shape_size(s) -> float | None:
+    """The largest dimension of an analytic shape in world space (None for a plane, infinite, and
+    for a mesh, whose vertices the builder reads)."""
+    if isinstance(s, Sphere):
+        return s.world()[2]
+    if isinstance(s, Rectangle):
+        _, e1, e2 = s.world()
+        return max(norm(e1), norm(e2))
+    if isinstance(s, Disk):
+        return s.radius
+    if isinstance(s, SOLID_TYPES):
+        return norm(s.world()[4])
+    return None
+
+
+def tiny_shapes(scene: "Scene") -> list[tuple[str, float]]:
+    """(field, size) of every analytic shape and area light whose size is non-zero but below
+    UNDERFLOW_WARNING (meshes are measured by the builder)."""
+    out = []
+    for i, s in enumerate(scene.shapes):
+        size = shape_size(s)
+        if size is not None and 0.0 < size < UNDERFLOW_WARNING:
+            out.append((f"shapes[{i}]", size))
+    for i, light in enumerate(scene.lights):
+        if is_area_light(light):
+            size = shape_size(light.shape())
+            if size is not None and 0.0 < size < UNDERFLOW_WARNING:
+                out.append((f"lights[{i}]", size))
+    return out
+
+
 def is_area_light(light) -> bool:
     """An area light is emission on a shape: it gives its emitting surface through ``.shape()``."""
     return callable(getattr(light, "shape", None))
@@ -749,8 +811,16 @@ class Scene:
         for name, cls in (("camera", Camera), ("render", RenderSettings), ("animation", Animation)):
             if not isinstance(getattr(self, name), cls):
                 raise SceneError(f"expected a {cls.__name__}, got {type(getattr(self, name)).__name__}", name)
-        set_field(self, "shapes", tuple(self.shapes))
-        set_field(self, "lights", tuple(self.lights))
+        for name, kinds in (("shapes", SHAPE_TYPES), ("lights", LIGHT_TYPES)):
+            value = getattr(self, name)
+            if isinstance(value, tuple(kinds.values())):
+                raise SceneError(f"expected a list of {name}, got one {type(value).__name__} (write "
+                                 f"{name}=[{type(value).__name__}(...)])", name)
+            if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, (Sequence, np.ndarray)):
+                raise SceneError(f"expected a list of {name}, got {type(value).__name__}", name)
+            set_field(self, name, tuple(value))
+        if not isinstance(self.materials, Mapping):
+            raise SceneError(f"expected a dict of name: Material, got {type(self.materials).__name__}", "materials")
         mats = dict(self.materials)
         for key, m in mats.items():
             if not isinstance(key, str) or not key:

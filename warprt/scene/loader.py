@@ -142,6 +142,8 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
 
 def load_scene(path: str | os.PathLike) -> Scene:
     """Read a TOML scene file. Relative mesh paths are resolved against the file's folder."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise SceneError(f"load_scene expects a file path (str or os.PathLike), got {type(path).__name__}")
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
@@ -178,6 +180,9 @@ def _with_line(error: Exception, path: str | None = None, text: str | None = Non
 
 def scene_from_string(text: str, base_dir: str = ".", source: str = "<string>") -> Scene:
     """Parse a scene from TOML text (handy in tests and notebooks)."""
+    if not isinstance(text, str):
+        raise SceneError(f"scene_from_string expects TOML text (a str), got {type(text).__name__}"
+                         + ("; for a file use load_scene" if isinstance(text, os.PathLike) else ""))
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
