@@ -19,6 +19,9 @@ import pathlib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 os.environ.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
+# every test compiles the kernel it renders with in the foreground, so that which kernel ran a
+# test never depends on a background compile's timing (tests/test_kernels.py tests that path)
+os.environ.setdefault("WARPRT_BACKGROUND_COMPILE", "0")
 
 import pytest  # noqa: E402
 import warp as wp  # noqa: E402

@@ -21,7 +21,8 @@ operation rounds once, as the CPU does, on every device.
 built under a lock so that threads never build the same module twice.
 
 Warp's loading of warprt's own modules is wrapped (:func:`_load`, over ``Module.load``; other
-modules are left to Warp): a damaged cache entry (a truncated or empty binary, an empty or
+modules are left to Warp): a compile is announced after a second and done once however many
+threads ask (``warprt.kernels.compiling``); a damaged cache entry (a truncated or empty binary, an empty or
 invalid ``.meta``: a disk that filled up, a copy cut short) is moved aside, compiled again and
 reported in one warning line, instead of failing every later run; and a compile cut short by
 Ctrl-C removes the temporary build folder Warp leaves behind (``<entry>_p<pid>_t<thread>``).
@@ -244,8 +245,14 @@ def _load(self, device, block_dim=None, binary_path=None, output_arch=None, meta
             _set_aside(folder, damage)
         compiles = not (os.path.isfile(os.path.join(folder, binary)) and os.path.isfile(os.path.join(folder, meta)))
         try:
-            if compiles and dev.is_cpu and _interruptible():
-                return _compile_in_thread(self, device, block_dim)
+            if compiles:
+                from . import kernels
+
+                # announced after a second, and compiled once however many threads ask
+                with kernels.compiling(self, dev, block_dim):
+                    if dev.is_cpu and _interruptible():
+                        return _compile_in_thread(self, device, block_dim)
+                    return _warp_load(self, device, block_dim)
             return _warp_load(self, device, block_dim)
         except Exception as e:
             # a binary the loader refused although it looked whole

@@ -173,7 +173,7 @@ def _render(args: argparse.Namespace, run) -> int:
     renderer = Renderer(scene, device=args.device)
     check_memory(width, height, args.aovs, [os.path.splitext(o)[1] for o in args.output],
                  film_on_host=renderer.device.is_cpu)  # before compiling or rendering
-    compile_s = renderer.compile()
+    # (the render loads the scene's kernel, or starts on the general one while it compiles)
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
                              progress=not args.no_progress, aovs=args.aovs or None, adaptive=args.adaptive,
                              planned_spp=args.planned_spp)
@@ -217,9 +217,11 @@ def _render(args: argparse.Namespace, run) -> int:
         note = f" (interrupted by {signal_name(run.first)} while writing: the files are complete)"
     if result.stack_overflows:
         print(f"warning: {result.stack_overflows} rays dropped on full ray stacks (lower max_depth)", file=sys.stderr)
+    general = (f"; {result.general_passes} passes on the general kernel while the scene's own compiled"
+               if result.general_passes else "")
     if written:
         print(f"{', '.join(written)}: {w}x{h}, {result.spp} spp{note}, render {result.wall_time:.2f} s "
-              f"(total {total:.2f} s, kernel load {compile_s:.2f} s), {result.rays / 1e6:.2f} Mrays, "
+              f"(total {total:.2f} s, kernel load {result.kernel_load:.2f} s{general}), {result.rays / 1e6:.2f} Mrays, "
               f"{result.mrays_per_s:.2f} Mrays/s on {result.device}")
     if failed:
         return 2

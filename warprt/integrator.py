@@ -31,7 +31,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from . import _warp
+from . import _warp, kernels
 from ._warp import build_once
 from .camera import camera_frame, camera_packet, camera_ray, lens_packet
 from .film import FilmData, claim_block, luminance, packet_samples, sanitize
@@ -741,4 +741,5 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             for r in range(calls):
                 render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, run, s0, s1, film, 0)
 
+    kernels.label(render_kernel, f"the render kernel for {F.key}" + ("" if packets else " (rays one by one)"))
     return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)

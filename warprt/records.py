@@ -49,6 +49,11 @@ class Features:
         return "+".join(on) if on else "basic"
 
 
+#: the feature set of the general kernel: every feature behind its run-time check, so that it
+#: renders any scene with the image of the scene's own variant (warprt.kernels)
+GENERAL_FEATURES = Features.full()
+
+
 def _reflects(m: Material) -> bool:
     return any(m.mirror) or (_refracts(m) and m.fresnel != "none")
 

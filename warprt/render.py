@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from . import _warp, splitting
+from . import _warp, kernels, splitting
 from .aov import check_aov_names, compute_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
@@ -45,7 +45,7 @@ from .film import Film, adaptive_counts
 from .integrator import kernels_for, packets_for
 from .trace import PACKET
 from .memory import check_memory
-from .records import Features
+from .records import GENERAL_FEATURES, Features
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
 from .signals import Deferred
 
@@ -85,6 +85,8 @@ class RenderResult:
     seed: int = 0
     sampler: str = ""
     adaptive: bool = False
+    kernel_load: float = 0.0  # seconds spent loading (or compiling) a kernel before the first pass
+    general_passes: int = 0  # passes run on the general kernel while the scene's own compiled
 
     def reproduction(self) -> dict:
         """What reproduces this image bit for bit, as image metadata (``warprt_*`` keys; the CLI
@@ -242,10 +244,18 @@ class Renderer:
     rays 8 at a time (the CPU's default) or one by one (CUDA's), see
     :func:`warprt.integrator.packets_for`; the images are the same bit for bit, only the speed
     differs.
+
+    ``background_compile`` (default: on, unless ``WARPRT_BACKGROUND_COMPILE=0``): when the
+    scene's kernel is not in Warp's cache yet but the general kernel (``Features.full()``) is, a
+    render starts at once on the general kernel while the scene's own compiles in a background
+    thread, and the passes after it is ready run on it (``warprt.kernels``). The image is the
+    same bit for bit. Off, or with neither kernel cached, the first render waits for the scene's
+    kernel to compile (announced on stderr after a second). :meth:`compile` always loads the
+    scene's own kernel.
     """
 
     def __init__(self, scene: Scene, device: str | None = None, features: Features | None = None,
-                 packets: bool | None = None):
+                 packets: bool | None = None, background_compile: bool | None = None):
         if not isinstance(scene, Scene):
             raise RenderError(f"render() needs a warprt.Scene, got {type(scene).__name__}")
         if packets is not None and not isinstance(packets, bool):
@@ -254,6 +264,8 @@ class Renderer:
             raise RenderError(f"features must be a warprt.Features (e.g. Features.full()), got {features!r:.60}")
         if device is not None and not isinstance(device, str) and not hasattr(device, "is_cpu"):
             raise RenderError(f"device must be a name such as 'cpu' or 'cuda:0', got {device!r:.60}")
+        if background_compile is not None and not isinstance(background_compile, bool):
+            raise RenderError(f"background_compile must be True, False or None, got {background_compile!r:.60}")
         self.device = _warp.resolve_device(device)
         #: camera rays in packets (the CPU's default) or one by one (CUDA's): the same images
         self.packets = packets_for(self.device) if packets is None else packets
@@ -261,8 +273,13 @@ class Renderer:
         self.built = DeviceScene(scene, self.device)
         self.built.refresh_bins()  # (the camera's bins of large meshes, built with the scene)
         self.features = self.built.features if features is None else self.built.features.union(features)
-        self.kernel = kernels_for(self.features, self.packets).render
-        self._loaded = None  # the kernel loaded on the device by compile()
+        self.kernel = kernels_for(self.features, self.packets).render  # the scene's own kernel
+        self._loaded = None  # the kernel loaded on the device by compile() (or in the background)
+        self._running = None  # the kernel the passes launch: the scene's own, or the general one meanwhile
+        self._background = None  # the scene's kernel compiling in the background (kernels.Background)
+        self._general_passes = 0  # the last render's passes on the general kernel
+        self._background_compile = (kernels.background_default() if background_compile is None
+                                    else background_compile)
         self._pool = WorkerPool("warprt-render")
         # seconds a sample of every pixel took in the last passes, per (workers, slices): sizes the
         # passes of the next render (one pass where they fit in half a second, not a 1-spp one first)
@@ -288,6 +305,7 @@ class Renderer:
         if needed.union(self.features) != self.features:
             self.features = self.features.union(needed)
             self.kernel = kernels_for(self.features, self.packets).render
+            self._running = None
 
     def set_camera(self, camera) -> None:
         """Replace the camera (same or different resolution); no rebuild of anything else."""
@@ -320,9 +338,7 @@ class Renderer:
         if not self.built.auto_lights:
             return None
         if self._light_samples is None:
-            if self._loaded is not self.kernel:
-                self.compile()
-                self._loaded = self.kernel
+            kernel = self._start_kernel()
             workers = default_workers() if workers is None else workers
             cam = self.scene.camera
             first, step = splitting.pilot_rows(cam.height)
@@ -336,7 +352,7 @@ class Renderer:
             for seed in splitting.PILOT_SEEDS:
                 params = render_params(self.scene, splitting.PILOT_SPP, seed, self.built.features)
                 film = Film(cam.width, cam.height, self.device)
-                pilots.append((film, [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run,
+                pilots.append((film, [wp.launch(kernel, dim=cam.width * len(rows[j::count]) // run,
                                                 device=self.device, record_cmd=True,
                                                 inputs=[self.built.data, self.built.camera, params, rows[j],
                                                         step * count, 0, 0, film.data, run, 1])
@@ -383,19 +399,52 @@ class Renderer:
         return self._light_map
 
     def compile(self) -> float:
-        """Load the kernel on this device, compiling it when Warp's cache lacks it; returns seconds.
+        """Load the scene's own kernel on this device, compiling it now when Warp's cache lacks it
+        (announced on stderr after a second); returns seconds. Renders use it from then on.
 
-        Done by an empty launch from the calling thread, so that the worker threads never race
-        to build the same module (a CPU launch loads its own variant of the module).
-        """
-        start = _time.perf_counter()
-        dev = self.device
-        film = Film(1, 1, dev)
-        wp.launch(self.kernel, dim=1, device=dev,
-                  inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features),
-                          0, 1, 0, 0, film.data, 1, 1])
-        wp.synchronize_device(dev)
-        return _time.perf_counter() - start
+        Done from the calling thread, so that the worker threads never race to build the same
+        module."""
+        if self._background is not None and self._background.module is self.kernel.module:
+            self._background.wait()  # (the same compile, already under way)
+        seconds = kernels.load(self.kernel, self.device)
+        self._loaded = self._running = self.kernel
+        return seconds
+
+    def _start_kernel(self):
+        """The kernel a render starts on (``_running``): the scene's own when it is loaded or in
+        Warp's cache; else, with background compiles on, the general kernel (``Features.full()``,
+        the same image bit for bit) when it is in the cache, while the scene's own compiles in the
+        background (``_switch_kernel`` takes it up between passes). Otherwise the scene's own,
+        compiled now (and the general kernel in the background, for the next new feature set)."""
+        own = self.kernel
+        if self._running is own or self._loaded is own:
+            self._running = own
+            return own
+        self._switch_kernel()
+        if self._running is own:
+            return own
+        general = kernels_for(GENERAL_FEATURES, self.packets).render
+        if (not self._background_compile or own is general or kernels.module_cached(own, self.device)
+                or not kernels.module_cached(general, self.device)):
+            if self._background_compile and own is not general:
+                kernels.compile_general(general, self.device)
+            self.compile()
+            return own
+        if self._background is None or self._background.module is not own.module:
+            self._background = kernels.Background(own, self.device)
+        kernels.load(general, self.device)
+        self._running = general
+        return general
+
+    def _switch_kernel(self) -> bool:
+        """Take up the scene's own kernel once its background compile is done; True when the
+        kernel changed. (A failed background compile leaves the general kernel running.)"""
+        bg = self._background
+        if bg is None or self._running is self.kernel or bg.module is not self.kernel.module or not bg.ready():
+            return False
+        self._loaded = self._running = self.kernel
+        self._background = None
+        return True
 
     def close(self) -> None:
         """Stop the worker threads (they also stop when the renderer is garbage-collected) and
@@ -487,10 +536,12 @@ class Renderer:
         cam = self.scene.camera
         width, height, dev = cam.width, cam.height, self.device
         film, held = self._film_for(width, height)
+        quiet = kernels.set_quiet(progress is False)  # (compile notices follow the progress output)
         try:
-            if self._loaded is not self.kernel:
-                self.compile()
-                self._loaded = self.kernel
+            loading = _time.perf_counter()
+            self._start_kernel()
+            kernel_load = _time.perf_counter() - loading
+            self._general_passes = 0
             self.light_samples(int(workers))  # samples = "auto": chosen once, then set for every render
             if self._light_samples is not None:
                 self._use_light_map(not adaptive)  # (the split map for uniform renders only)
@@ -554,10 +605,50 @@ class Renderer:
                                 features=self.features,
                                 device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps,
                                 planned_spp=pattern, passes=tuple(passes), stopped_by=stopped_by, seed=int(seed),
-                                sampler=self.scene.render.sampler, adaptive=bool(adaptive and spp >= ADAPTIVE_MIN_SPP))
+                                sampler=self.scene.render.sampler, adaptive=bool(adaptive and spp >= ADAPTIVE_MIN_SPP),
+                                kernel_load=kernel_load, general_passes=self._general_passes)
         finally:
+            kernels.reset_quiet(quiet)
             if held:
                 self._film_lock.release()
+
+    def _launches_for(self, film: Film, params, n_slices: int | None, workers: int, run: int, claims: bool) -> list:
+        """One recorded launch of the running kernel per worker (or slice), replayed every pass
+        with the pass's sample range; kept for the next call while kernel, scene (its record is
+        made once, with it), camera and film are the same objects and slices and workers the same
+        numbers, with only the render's parameters set again (recording packs every argument, the
+        scene's record among them: about 0.3 ms for 8 launches)."""
+        cam = self.scene.camera
+        dev = self.device
+        kernel = self._running
+        key = (kernel, self.built, self.built.camera, film, n_slices, workers, run)
+        kept = self._launches
+        if kept is not None and all(a is b for a, b in zip(kept[0][:4], key[:4])) and kept[0][4:] == key[4:]:
+            launches = kept[1]
+            for cmd in launches:
+                cmd.set_param_at_index(PARAMS_ARG, params)
+            return launches
+        if claims:
+            # one launch per worker, each claiming blocks of rows until none is left (stride 0):
+            # as many threads as blocks, in case one launch takes them all
+            n_blocks = -(-cam.height // SLICE_BLOCK)
+            launches = [wp.launch(kernel, dim=n_blocks, device=dev, record_cmd=True,
+                                  inputs=[self.built.data, self.built.camera, params, 0, 0, 0, 0, film.data,
+                                          cam.width, SLICE_BLOCK])
+                        for _ in range(workers)]
+        else:
+            # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
+            # integrator.render_kernel)
+            blocks = run >= cam.width and self.features.meshes
+            launches = [wp.launch(kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
+                                  device=dev, record_cmd=True,
+                                  inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
+                                          film.data, run, block])
+                        for first, stride, block, count in _slices(
+                            cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices)]
+        if film is self._film:  # (a film of a render in another thread is not kept)
+            self._launches = (key, launches)
+        return launches
 
     def _passes(self, film: Film, params, start: int, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error,
                 *, workers: int, n_slices: int | None, pass_spp, stop,
@@ -568,44 +659,12 @@ class Renderer:
         later pass takes about half a second, sized from the time per sample last measured with
         these workers and slices and, with per-pixel counts, from how many pixels still sample at
         each index."""
-        cam = self.scene.camera
         dev = self.device
-        # one recorded launch per worker (or slice), replayed every pass with the pass's sample
-        # range; kept for the next call while kernel, scene (its record is made once, with it),
-        # camera and film are the same objects and slices and workers the same numbers, with only
-        # the render's parameters set again (recording packs every argument, the scene's record
-        # among them: about 0.3 ms for 8 launches)
-        run = pixels_per_thread(dev, cam.width)
+        run = pixels_per_thread(dev, self.scene.camera.width)
         # by default (n_slices None: the CPU) each worker's launch claims blocks of rows; threads
         # of fewer pixels than a row (tests that render pixel by pixel) take fixed slices instead
-        claims = n_slices is None and run >= cam.width
-        key = (self.kernel, self.built, self.built.camera, film, n_slices, workers, run)
-        kept = self._launches
-        if kept is not None and all(a is b for a, b in zip(kept[0][:4], key[:4])) and kept[0][4:] == key[4:]:
-            launches = kept[1]
-            for cmd in launches:
-                cmd.set_param_at_index(PARAMS_ARG, params)
-        else:
-            if claims:
-                # one launch per worker, each claiming blocks of rows until none is left (stride 0):
-                # as many threads as blocks, in case one launch takes them all
-                n_blocks = -(-cam.height // SLICE_BLOCK)
-                launches = [wp.launch(self.kernel, dim=n_blocks, device=dev, record_cmd=True,
-                                      inputs=[self.built.data, self.built.camera, params, 0, 0, 0, 0, film.data,
-                                              cam.width, SLICE_BLOCK])
-                            for _ in range(workers)]
-            else:
-                # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
-                # integrator.render_kernel)
-                blocks = run >= cam.width and self.features.meshes
-                launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
-                                      device=dev, record_cmd=True,
-                                      inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
-                                              film.data, run, block])
-                            for first, stride, block, count in _slices(
-                                cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices)]
-            if film is self._film:  # (a film of a render in another thread is not kept)
-                self._launches = (key, launches)
+        claims = n_slices is None and run >= self.scene.camera.width
+        launches = self._launches_for(film, params, n_slices, workers, run, claims)
         pool = self._pool.get(workers)
 
         # the work of sample indices [0, s) in samples of every pixel: s itself, unless the film has
@@ -638,6 +697,10 @@ class Renderer:
             else:
                 size = 1  # the renderer's first pass: one sample, to time one
             size = min(size, spp - done)
+            if self._switch_kernel():  # the scene's own kernel, compiled in the background: from this pass on
+                launches = self._launches_for(film, params, n_slices, workers, run, claims)
+            if self._running is not self.kernel:
+                self._general_passes += 1
             if claims:  # (each pass's launches claim the blocks from the first again)
                 film.reset_claims()
             try:

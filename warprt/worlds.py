@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import _warp
+from . import _warp, kernels
 from ._warp import build_once
 from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
@@ -54,7 +54,8 @@ from .integrator import kernels_for, packets_for
 from .memory import check_memory
 from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
-    CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams, SceneData, SolidRec, SphereRec,
+    GENERAL_FEATURES, CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams,
+    SceneData, SolidRec, SphereRec,
 )
 from .render import (
     SLICE_BLOCK, SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass,
@@ -287,6 +288,7 @@ def batch_kernel_for(F: Features, packets: bool):
                 render_pixel(sc, cam, params, px, py, g, s0, s1, film)
                 color[g] = film.accum[g] * inv_spp
 
+    kernels.label(batch_render, f"the batch render kernel for {F.key}" + ("" if packets else " (rays one by one)"))
     return batch_render
 
 
@@ -368,7 +370,8 @@ class BatchRenderer:
     """
 
     def __init__(self, scene: Scene, worlds: int = 1, cameras: int = 1, device: str | None = None,
-                 motion_blur: bool = False, features: Features | None = None, check_inputs: bool = True):
+                 motion_blur: bool = False, features: Features | None = None, check_inputs: bool = True,
+                 background_compile: bool | None = None):
         if not isinstance(scene, Scene):
             raise RenderError(f"BatchRenderer needs a warprt.Scene, got {type(scene).__name__}")
         if features is not None and not isinstance(features, Features):
@@ -472,10 +475,40 @@ class BatchRenderer:
             self.scene_data.bvh_prims = self._prims
         self.film = Film(cam.width, W * C * cam.height, dev)
         self._color = wp.zeros(pixels, dtype=wp.vec3, device=dev)
-        self._kernel = batch_kernel_for(self.features, packets_for(dev))
-        self._loaded = False
+        self._own = batch_kernel_for(self.features, packets_for(dev))  # the scene's own kernel
+        self._kernel = None  # the kernel renders launch: the own one, or the general one while it compiles
+        self._background = None  # the own kernel compiling in the background (kernels.Background)
+        self._background_compile = (kernels.background_default() if background_compile is None
+                                    else bool(background_compile))
         self._aov_bufs = None
         self._pool = WorkerPool("warprt-batch")
+
+    def _pick_kernel(self) -> None:
+        """Load the kernel this render launches, from this thread (the workers must not race to
+        build it): the scene's own once it is loaded or in Warp's cache; while it is not, with
+        background compiles on and the general batch kernel (``Features.full()``: the same images
+        bit for bit) cached, that one, while the own one compiles in the background (as
+        ``Renderer`` does; the render after it is ready takes it up)."""
+        own = self._own
+        if self._kernel is own:
+            return
+        bg = self._background
+        if bg is not None and bg.ready():
+            self._kernel, self._background = own, None
+            self.counters["compiles"] += 1
+            return
+        if self._kernel is not None:
+            return  # (the general kernel, while the own one compiles)
+        general = batch_kernel_for(GENERAL_FEATURES, packets_for(self.device))
+        if (self._background_compile and own is not general and not kernels.module_cached(own, self.device)
+                and kernels.module_cached(general, self.device)):
+            self._background = kernels.Background(own, self.device)
+            kernels.load(general, self.device)
+            self._kernel = general
+        else:
+            kernels.load(own, self.device)
+            self._kernel = own
+        self.counters["compiles"] += 1
 
     # --- poses ------------------------------------------------------------------------------
 
@@ -602,12 +635,7 @@ class BatchRenderer:
         run = pixels_per_thread(dev, self.width)
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
                   self.height, self.width, run, 1.0 / float(spp), self._color, 1]
-        if not self._loaded:  # load the modules from this thread (workers must not race to build them)
-            self._update_tables()
-            wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
-            wp.synchronize_device(dev)
-            self.counters["compiles"] += 1
-            self._loaded = True
+        self._pick_kernel()
         start = _time.perf_counter()
         self._update_tables()
         if self.bvh is not None:
