@@ -50,7 +50,8 @@ def aov_scene() -> warprt.Scene:
         camera=cam,
         shapes=(warprt.Plane(material="floor"),
                 warprt.Sphere(center=(-0.8, 0.5, 0.0), center_end=(-0.4, 0.65, 0.3), radius=0.5, material="red"),
-                warprt.Rectangle(corner=(-2.5, 0.0, -1.5), edge1=(5.0, 0.0, 0.0), edge2=(0.0, 2.5, 0.0), material="wall"),
+                warprt.Rectangle(corner=(-2.5, 0.0, -1.5), edge1=(5.0, 0.0, 0.0), edge2=(0.0, 2.5, 0.0),
+                                 material="wall"),
                 # seen from behind: its normal (away from the camera) must be turned towards it
                 warprt.Disk(center=(-0.3, 0.25, 1.3), normal=(0.2, 0.3, -1.0), radius=0.22, material="back")),
         materials={"floor": warprt.Material(kd=0.6), "red": warprt.Material(kd=(0.8, 0.2, 0.1), ks=0.3, p=20),

@@ -188,7 +188,8 @@ def _frame_by_hand(scene: warprt.Scene, frame: int) -> warprt.Scene:
     t0, t1 = frame / FPS, (frame + 1) / FPS
     cam = scene.camera
     keys = cam.keyframes
-    cam = replace(cam, keyframes=(), eye=_lerp(keys, t0, "eye", cam.eye), look_at=_lerp(keys, t0, "look_at", cam.look_at),
+    cam = replace(cam, keyframes=(), eye=_lerp(keys, t0, "eye", cam.eye),
+                  look_at=_lerp(keys, t0, "look_at", cam.look_at),
                   eye_end=_lerp(keys, t1, "eye", cam.eye), look_at_end=_lerp(keys, t1, "look_at", cam.look_at))
     shapes = []
     for s in scene.shapes:
@@ -271,8 +272,10 @@ def _shape_pose(model, s: int, body_q: np.ndarray) -> np.ndarray:
     return np.concatenate([paths.apply(body_q[b], x[:3]), q])
 
 
-NEWTON_CASES = [dict(motion_blur=False, cone=True, sampler="regular"), dict(motion_blur=False, cone=True, sampler="sobol"),
-                dict(motion_blur=True, cone=False, sampler="regular"), dict(motion_blur=True, cone=False, sampler="stratified")]
+NEWTON_CASES = [dict(motion_blur=False, cone=True, sampler="regular"),
+                dict(motion_blur=False, cone=True, sampler="sobol"),
+                dict(motion_blur=True, cone=False, sampler="regular"),
+                dict(motion_blur=True, cone=False, sampler="stratified")]
 
 
 @pytest.mark.parametrize("case", NEWTON_CASES, ids=[paths.case_id(c) for c in NEWTON_CASES])
@@ -298,7 +301,8 @@ def test_newton_worlds_equal_single_renders_of_their_bodies(case):
         state = m.state()
         state.body_q.assign(q.astype(np.float32))
         r.update(state)
-    cam0 = np.array([[look_at_pose((3.0 - w, -3.0 + c, 2.0), (0.0, 0.0, 0.3)) for c in range(cams)] for w in range(worlds)])
+    cam0 = np.array([[look_at_pose((3.0 - w, -3.0 + c, 2.0), (0.0, 0.0, 0.3)) for c in range(cams)]
+                     for w in range(worlds)])
     cam1 = cam0.copy()
     if case["motion_blur"]:  # the cameras turn too
         for w in range(worlds):

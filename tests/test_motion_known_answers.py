@@ -54,7 +54,8 @@ def _edge_scene(look_end=None) -> warprt.Scene:
     """A level pinhole camera at the origin looking down -z (turning to ``look_end``, a unit
     vector, over the shutter) and a flat surface covering x > 0 of the plane z = -DIST, shown
     by the ambient term alone (value 1 where it is seen, 0 elsewhere)."""
-    wall = warprt.Rectangle(corner=(0.0, -50.0, -DIST), edge1=(100.0, 0.0, 0.0), edge2=(0.0, 100.0, 0.0), material="flat")
+    wall = warprt.Rectangle(corner=(0.0, -50.0, -DIST), edge1=(100.0, 0.0, 0.0), edge2=(0.0, 100.0, 0.0),
+                            material="flat")
     cam = warprt.Camera(eye=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, -1.0), fov=FOV, width=EW, height=EH,
                         look_at_end=None if look_end is None else tuple(look_end))
     return warprt.Scene(camera=cam, shapes=(wall,), materials={"flat": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0,
