@@ -94,10 +94,15 @@ def instanced_scene():
                         render=warprt.RenderSettings(sampler="regular", spp=1))
 
 
-def point_lights():
-    """Three around the instances and one low between them (instances beyond it)."""
+def point_lights(scene):
+    """Three around the instances, one low between them, and one 2e-3 above an instance's
+    surface: a shadow segment must end at its light, not at the triangle just past it."""
+    mesh = Triangles(world_triangles(scene)[0])
+    t, _, _ = mesh.nearest(np.array([[0.4, 3.0, 0.35]]), np.array([[0.0, -1.0, 0.0]]))
+    assert np.isfinite(t[0])
+    close = (0.4, 3.0 - float(t[0]) + 2e-3, 0.35)
     return [warprt.PointLight(position=p, intensity=10.0, falloff="inverse_square")
-            for p in ((1.0, 5.0, 2.0), (-4.0, 3.0, -1.0), (3.0, 1.2, 3.5), (-0.55, 0.45, -0.65))]
+            for p in ((1.0, 5.0, 2.0), (-4.0, 3.0, -1.0), (3.0, 1.2, 3.5), (-0.55, 0.45, -0.65), close)]
 
 
 def world_triangles(scene):
@@ -208,4 +213,5 @@ def test_a_large_closed_mesh_under_rectangle_lights_shadows_as_the_exact_test():
 
 
 def test_instanced_scaled_meshes_under_a_point_light_shadow_as_the_exact_test():
-    check_shadows(instanced_scene(), point_lights(), "instanced meshes, point light")
+    scene = instanced_scene()
+    check_shadows(scene, point_lights(scene), "instanced meshes, point light")
