@@ -66,12 +66,14 @@ def cuda_device() -> str:
 
 
 def _variants_built() -> dict:
-    """The render-kernel variants and other warprt modules this process built."""
-    from warprt import aov, integrator, query
+    """The render-kernel variants (single-image and batch) and other warprt modules this process
+    built."""
+    from warprt import aov, integrator, query, worlds
 
     keys = sorted(f.key + ("" if packets else " one by one") for (f, packets) in integrator.kernels_for.built())
+    batch = sorted(f.key + ("" if packets else " one by one") for (f, packets) in worlds.batch_kernel_for.built())
     extra = [name for name, factory in (("query", query._query_kernels), ("aov", aov._aov_kernel)) if factory.built()]
-    return {"variants": keys, "other_modules": extra}
+    return {"variants": keys, "batch_variants": batch, "other_modules": extra}
 
 
 _WORKER_RECORDS: list[dict] = []  # under pytest-xdist: what each worker process built
@@ -98,9 +100,12 @@ def pytest_terminal_summary(terminalreporter):
 
     records = [_variants_built()] + _WORKER_RECORDS
     keys = sorted({k for r in records for k in r["variants"]})
+    batch = sorted({k for r in records for k in r.get("batch_variants", ())})
     extra = [name for name in ("query", "aov") if any(name in r["other_modules"] for r in records)]
-    record = {"render_kernel_variants": len(keys), "variants": keys, "other_modules": extra}
+    record = {"render_kernel_variants": len(keys), "variants": keys, "batch_kernel_variants": len(batch),
+              "batch_variants": batch, "other_modules": extra}
     terminalreporter.write_line(f"warprt kernel variants built: {len(keys)} render ({', '.join(keys)})"
+                                + f"; {len(batch)} batch ({', '.join(batch)})"
                                 + "".join(f" + the {name} module" for name in extra))
     try:
         path = ROOT / ".cache" / "test-kernel-variants.json"
