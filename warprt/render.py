@@ -37,11 +37,11 @@ import numpy as np
 import warp as wp
 
 from . import _warp, splitting
-from .aov import check_aov_names, compute_aovs
+from .aov import AovTarget, check_aov_names, no_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
 from .errors import RenderError
-from .film import Film, adaptive_counts
+from .film import NO_LIMIT, Film, adaptive_counts
 from .integrator import kernels_for, packets_for
 from .trace import PACKET
 from .memory import check_memory
@@ -89,6 +89,7 @@ def default_workers() -> int:
 
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 PARAMS_ARG = 2  # position of the render's parameters (RenderParams)
+AOV_ARG = 10  # position of the render's AOV buffers (aov.AovData)
 ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
 # interleaved sets of rows per worker where a pass is cut into fixed slices: the light-splitting
@@ -327,7 +328,8 @@ class Renderer:
                 pilots.append((film, [wp.launch(self.kernel, dim=cam.width * len(rows[j::count]) // run,
                                                 device=self.device, record_cmd=True,
                                                 inputs=[self.built.data, self.built.camera, params, rows[j],
-                                                        step * count, 0, 0, film.data, run, 1])
+                                                        step * count, 0, 0, film.data, run, 1,
+                                                        no_aovs(self.device)])
                                       for j in range(count)]))
             self.built.set_light_map(None)  # (the pilot's counts are the rows')
             errors, tiles = [], []
@@ -381,7 +383,7 @@ class Renderer:
         film = Film(1, 1, dev)
         wp.launch(self.kernel, dim=1, device=dev,
                   inputs=[self.built.data, self.built.camera, render_params(self.scene, 1, 0, self.built.features),
-                          0, 1, 0, 0, film.data, 1, 1])
+                          0, 1, 0, 0, film.data, 1, 1, no_aovs(dev)])
         wp.synchronize_device(dev)
         return _time.perf_counter() - start
 
@@ -468,7 +470,12 @@ class Renderer:
             self.built.rendering()  # (a view rendered often enough gets its bins)
             # (None: the CPU workers claim blocks of rows; see the module docstring)
             n_slices = (None if slices is None else int(slices)) if dev.is_cpu else 1
-            run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop)
+            # the AOVs, from the passes' own samples (warprt.aov): the pass that completes the planned
+            # samples writes them, unless adaptive sampling decides the counts after its pilot
+            counted = adaptive and spp >= ADAPTIVE_MIN_SPP
+            target = AovTarget(self.built, aovs, width * height, NO_LIMIT if counted else int(spp)) if aovs else None
+            run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop,
+                       aov=no_aovs(dev) if target is None else target.data)
 
             show = (sys.stderr.isatty() if progress is None else progress)
             bar = None
@@ -483,8 +490,10 @@ class Renderer:
                     planned = int(spp)
                     interrupted = False
                     params = render_params(self.scene, int(spp), int(seed), self.built.features)
+                    if target is not None:
+                        params.aovs = target.mask
                     done, rel_err = 0, None
-                    if adaptive and spp >= ADAPTIVE_MIN_SPP:
+                    if counted:
                         # the pilot: the first n0 samples of every pixel, which then decide the other
                         # pixels' counts (never their own, see film.adaptive_counts) and stay in the image
                         n0 = max(1, int(spp) // ADAPTIVE_PILOT_FRACTION)  # 2 spp: one sample, then counts
@@ -506,9 +515,10 @@ class Renderer:
             if target_error is not None and rel_err is None and done >= 2:
                 rel_err = film.relative_error(done)
             image = film.device_image(done) if as_warp else film.image(done)
-            # the AOVs of the samples the image holds (the same camera rays, regenerated)
-            aov_maps = compute_aovs(self.built, aovs, params, film.data, done, as_warp, self._pool.get(int(workers)),
-                                    int(workers)) if aovs else {}
+            aov_maps = {}
+            if target is not None:  # the AOVs of the samples the image holds
+                target.finish(film.data, done)
+                aov_maps = target.maps((height, width), as_warp)
             # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
             spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
             return RenderResult(image=image, spp=spp_done, wall_time=wall, rays=film.rays(),
@@ -520,20 +530,20 @@ class Renderer:
                 self._film_lock.release()
 
     def _passes(self, film: Film, params, start: int, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error,
-                *, workers: int, n_slices: int | None, pass_spp, stop) -> tuple[int, bool, float | None]:
+                *, workers: int, n_slices: int | None, pass_spp, stop, aov) -> tuple[int, bool, float | None]:
         """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
         early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
         relative error or None). The renderer's first pass is one sample (to time one); every
         later pass takes about half a second, sized from the time per sample last measured with
         these workers and slices and, with per-pixel counts, from how many pixels still sample at
-        each index."""
+        each index. ``aov``: the render's ``aov.AovData``."""
         cam = self.scene.camera
         dev = self.device
         # one recorded launch per worker (or slice), replayed every pass with the pass's sample
         # range; kept for the next call while kernel, scene (its record is made once, with it),
         # camera and film are the same objects and slices and workers the same numbers, with only
-        # the render's parameters set again (recording packs every argument, the scene's record
-        # among them: about 0.3 ms for 8 launches)
+        # the render's parameters and AOV buffers set again (recording packs every argument, the
+        # scene's record among them: about 0.3 ms for 8 launches)
         run = pixels_per_thread(dev, cam.width)
         # by default (n_slices None: the CPU) each worker's launch claims blocks of rows; threads
         # of fewer pixels than a row (tests that render pixel by pixel) take fixed slices instead
@@ -544,6 +554,7 @@ class Renderer:
             launches = kept[1]
             for cmd in launches:
                 cmd.set_param_at_index(PARAMS_ARG, params)
+                cmd.set_param_at_index(AOV_ARG, aov)
         else:
             if claims:
                 # one launch per worker, each claiming blocks of rows until none is left (stride 0):
@@ -551,7 +562,7 @@ class Renderer:
                 n_blocks = -(-cam.height // SLICE_BLOCK)
                 launches = [wp.launch(self.kernel, dim=n_blocks, device=dev, record_cmd=True,
                                       inputs=[self.built.data, self.built.camera, params, 0, 0, 0, 0, film.data,
-                                              cam.width, SLICE_BLOCK])
+                                              cam.width, SLICE_BLOCK, aov])
                             for _ in range(workers)]
             else:
                 # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
@@ -560,7 +571,7 @@ class Renderer:
                 launches = [wp.launch(self.kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
                                       device=dev, record_cmd=True,
                                       inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
-                                              film.data, run, block])
+                                              film.data, run, block, aov])
                             for first, stride, block, count in _slices(
                                 cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices)]
             if film is self._film:  # (a film of a render in another thread is not kept)

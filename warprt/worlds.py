@@ -48,7 +48,7 @@ from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
-from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_names, id_map, shaped
+from .aov import AOVS, AovData, AovTarget, check_aov_names, no_aovs
 from .integrator import kernels_for, packets_for
 from .memory import check_memory
 from .records import (
@@ -62,6 +62,7 @@ from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
 
+BLOCK_ARG = 15  # position of ``block`` among the batch kernel's arguments
 BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
 
 
@@ -254,13 +255,13 @@ def batch_kernel_for(F: Features, packets: bool):
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
                      row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
                      n_cams: int, height: int, width: int, run: int, inv_spp: float, color: wp.array(dtype=wp.vec3),
-                     block: int):
+                     block: int, aov: AovData):
         # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
         # ... of the tall image (W·C·H rows; render._slices), ``run`` consecutive pixels of one row
         # per thread (``run`` divides the width); or, with stride 0 (a CPU batch's default, run =
         # the width), each thread claims the next block of ``block`` rows from the film's counter
         # (film.claim_block) until none is left. A batch renders all its samples in one pass, so
-        # each pixel's colour is written here too
+        # each pixel's colour is written here too, and its AOVs where the render asks for them
         k0 = wp.tid() * run
         gy0 = int(0)
         px0 = int(0)
@@ -283,27 +284,10 @@ def batch_kernel_for(F: Features, packets: bool):
             for j in range(run):
                 px = px0 + j
                 g = gy * width + px
-                render_pixel(sc, cam, params, px, py, g, s0, s1, film)
+                render_pixel(sc, cam, params, px, py, g, s0, s1, film, aov)
                 color[g] = film.accum[g] * inv_spp
 
     return batch_render
-
-
-@build_once
-def _batch_aov_kernel():
-    """The AOVs of a batch: ``aov.aov_pixel`` on each world's tables (a module of its own)."""
-    aov_pixel = aov_functions()
-
-    @wp.kernel(module="warprt_worlds_aov", enable_backward=False)
-    def batch_aovs(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams, tables: WorldTables,
-                   n_cams: int, height: int, width: int, n: int, idmap: IdMap, out: AovBuffers):
-        g = wp.tid()
-        gy = g / width
-        image = gy / height
-        aov_pixel(world_scene(scene, tables, image / n_cams), cams[image], params, g - gy * width,
-                  gy - image * height, g, n, idmap, out, g)
-
-    return batch_aovs
 
 
 @dataclass
@@ -463,7 +447,7 @@ class BatchRenderer:
         self._color = wp.zeros(pixels, dtype=wp.vec3, device=dev)
         self._kernel = batch_kernel_for(self.features, packets_for(dev))
         self._loaded = False
-        self._aov_bufs = None
+        self._aovs: AovTarget | None = None  # the last render's AOV buffers (kept while it asks for the same)
         self._pool = WorkerPool("warprt-batch")
 
     # --- poses ------------------------------------------------------------------------------
@@ -556,8 +540,19 @@ class BatchRenderer:
         n_slices = (None if slices is None else _positive_int(slices, "slices")) if dev.is_cpu else 1
         params = render_params(self.scene, spp, int(seed), self.features)
         run = pixels_per_thread(dev, self.width)
+        # the AOVs come from the render's own samples (warprt.aov): its one pass writes them
+        target = None
+        if aovs:
+            target = self._aovs
+            if target is None or target.names != aovs:
+                self._aovs = None  # (its buffers freed before the new ones are made)
+                target = self._aovs = AovTarget(self.built, aovs, self._color.shape[0], SPP_LIMIT + 1,
+                                                between_passes=False)
+            target.data.end = spp
+            params.aovs = target.mask
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
-                  self.height, self.width, run, 1.0 / float(spp), self._color, 1]
+                  self.height, self.width, run, 1.0 / float(spp), self._color, 1,
+                  no_aovs(dev) if target is None else target.data]
         if not self._loaded:  # load the modules from this thread (workers must not race to build them)
             self._update_tables()
             wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
@@ -573,7 +568,7 @@ class BatchRenderer:
         # blocks of rows, a thread per block in case one launch takes them all)
         if n_slices is None and run >= self.width:
             args = list(inputs)
-            args[4], args[-1] = 0, SLICE_BLOCK
+            args[4], args[BLOCK_ARG] = 0, SLICE_BLOCK
             launches = [wp.launch(self._kernel, dim=-(-rows // SLICE_BLOCK), device=dev, inputs=args, record_cmd=True)
                         for _ in range(workers)]
             self.film.reset_claims()
@@ -582,23 +577,11 @@ class BatchRenderer:
             for first, stride, block, count in _slices(self.width, rows,
                                                        SLICES_PER_WORKER * workers if n_slices is None else n_slices):
                 args = list(inputs)
-                args[3], args[4], args[-1] = first, stride, block
+                args[3], args[4], args[BLOCK_ARG] = first, stride, block
                 launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
         shape = (self.worlds, self.cameras, self.height, self.width)
-        aov_maps = {}
-        if aovs:
-            if self._aov_bufs is None:
-                self._aov_bufs = aov_buffers(self._color.shape[0], dev)
-                self._idmap = id_map(self.built)
-                self._aov_loaded = False
-            aov_inputs = [self.scene_data, self._cams, params, self.tables, self.cameras, self.height, self.width, spp,
-                          self._idmap, self._aov_bufs]
-            if not self._aov_loaded:
-                self.counters["compiles"] += 1
-                self._aov_loaded = True
-            wp.launch(_batch_aov_kernel(), dim=self._color.shape[0], device=dev, inputs=aov_inputs)
-            aov_maps = shaped(self._aov_bufs, aovs, shape, as_warp=True)
+        aov_maps = {} if target is None else target.maps(shape, as_warp=True)
         wp.synchronize_device(dev)
         wall = _time.perf_counter() - start
         return BatchResult(color=self._color.reshape(shape), spp=spp, wall_time=wall, film=self.film, aovs=aov_maps)
