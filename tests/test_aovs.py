@@ -18,6 +18,7 @@ import pytest
 import warp as wp
 
 import warprt
+from warprt.aov import AOV_NAMES
 from warprt.query import pixel_samples
 
 W, H, SPP = 16, 12, 8
@@ -67,16 +68,23 @@ def host_hits(sc, o, d):
     return t, shape, margin
 
 
-def expected(sc):
+def expected(sc, counts=None):
+    """coverage, depth, object id and the doubtful pixels (a sample ray within float32 rounding
+    of a silhouette) from each pixel's first ``counts`` samples (default SPP)."""
+    counts = np.full(W * H, SPP) if counts is None else np.asarray(counts).reshape(-1)
+    n = int(counts.max())
     pixels = np.arange(W * H)
-    film = pixel_samples(sc.render.sampler, pixels, SPP, dim=0)  # (N, SPP, 2)
-    lens = pixel_samples(sc.render.sampler, pixels, SPP, dim=1)
+    film = pixel_samples(sc.render.sampler, pixels, SPP, dim=0, count=n)  # (N, n, 2)
+    lens = pixel_samples(sc.render.sampler, pixels, SPP, dim=1, count=n)
     px = np.stack([pixels % W, pixels // W], axis=1)[:, None, :] + film
     o, d = warprt.camera_rays(sc, points=px.reshape(-1, 2), lens=lens.reshape(-1, 2))
     t, shape, margin = host_hits(sc, o, d)
-    t, shape, margin = (x.reshape(W * H, SPP) for x in (t, shape, margin))
+    t, shape, margin = (x.reshape(W * H, n) for x in (t, shape, margin))
+    taken = np.arange(n)[None, :] < counts[:, None]
+    shape = np.where(taken, shape, -1)
+    margin = np.where(taken, margin, np.inf)
     hits = shape >= 0
-    coverage = hits.mean(axis=1)
+    coverage = hits.sum(axis=1) / counts
     with np.errstate(invalid="ignore"):
         depth = np.where(hits.any(axis=1), np.where(hits, t, 0).sum(axis=1) / hits.sum(axis=1), np.inf)
     ids = np.full(W * H, -1)
@@ -84,8 +92,8 @@ def expected(sc):
         seen = [s for s in shape[i] if s >= 0]
         if seen:
             order = list(dict.fromkeys(seen))
-            counts = [seen.count(s) for s in order]
-            ids[i] = order[int(np.argmax(counts))]  # argmax: the first of the largest
+            counts_i = [seen.count(s) for s in order]
+            ids[i] = order[int(np.argmax(counts_i))]  # argmax: the first of the largest
     doubtful = (margin < 1e-4).any(axis=1)
     return coverage.reshape(H, W), depth.reshape(H, W), ids.reshape(H, W), doubtful.reshape(H, W)
 
@@ -129,24 +137,72 @@ def test_ids_are_the_majority_not_the_first_or_last_sample():
     np.testing.assert_array_equal(out.ravel()[differs_first | differs_last], ids.ravel()[differs_first | differs_last])
 
 
-@pytest.mark.parametrize("size", [(16, 12), (37, 23)])
-def test_aovs_are_the_same_for_any_number_of_workers(size, monkeypatch):
-    """On the CPU the workers take bands of the AOV pixels in turn (``aov.compute_aovs``): every
-    AOV is the same bit for bit with 1, 2 and 3 workers, and with single-row bands."""
-    from warprt import aov
+class StopAfter:
+    """A ``stop`` event that is set once it has been read ``n`` times (after the n-th pass)."""
 
+    def __init__(self, n):
+        self.n = n
+
+    def is_set(self):
+        self.n -= 1
+        return self.n < 0
+
+
+@pytest.mark.parametrize("size", [(16, 12), (37, 23)])
+def test_aovs_are_the_same_for_any_workers_slices_or_passes(size):
+    """The render kernel adds each camera sample to its pixel's AOV sums in sample order, in the
+    thread that owns the pixel (``warprt.aov``): every AOV is the same bit for bit with 1, 2 and
+    3 workers, fixed slices, and passes of one or three samples (the sums wait between passes)."""
     w, h = size
     sc = scene()
     sc = sc.replace(camera=dataclasses.replace(sc.camera, width=w, height=h))
-    names = ["depth", "normal", "coverage", "object_id", "position"]
+    names = list(AOV_NAMES)
     r = warprt.Renderer(sc, device="cpu")
-    one = r.render(spp=4, progress=False, aovs=names, workers=1).aovs
-    assert 0 < one["coverage"].mean() < 1
-    monkeypatch.setattr(aov, "AOV_PIECES_PER_WORKER", h)  # (bands of one row: more launches than rows per worker)
-    for workers in (2, 3):
-        out = r.render(spp=4, progress=False, aovs=names, workers=workers).aovs
+    one = r.render(spp=4, progress=False, aovs=names, workers=1)
+    assert 0 < one.aovs["coverage"].mean() < 1
+    for options in (dict(workers=2), dict(workers=3), dict(workers=2, slices=5), dict(workers=1, pass_spp=1),
+                    dict(workers=2, pass_spp=3), dict(workers=2, slices=3, pass_spp=1)):
+        out = r.render(spp=4, progress=False, aovs=names, **options)
+        assert out.image.tobytes() == one.image.tobytes(), options
         for name in names:
-            assert out[name].tobytes() == one[name].tobytes(), (name, workers)
+            assert out.aovs[name].tobytes() == one.aovs[name].tobytes(), (name, options)
+
+
+def test_a_stopped_render_has_the_aovs_of_the_samples_it_holds():
+    """A render stopped after its second pass (``stop``, as Ctrl-C) holds two samples a pixel;
+    its AOVs are those of a two-sample render, bit for bit (Sobol points do not depend on the
+    planned count): there the last pass writes them, here ``aov_finish`` after the passes, by the
+    same rules."""
+    sc = scene(sampler="sobol")
+    names = list(AOV_NAMES)
+    r = warprt.Renderer(sc, device="cpu")
+    stopped = r.render(spp=8, pass_spp=1, stop=StopAfter(1), progress=False, aovs=names)
+    assert stopped.interrupted and stopped.spp == 2
+    two = r.render(spp=2, pass_spp=1, progress=False, aovs=names)
+    assert stopped.image.tobytes() == two.image.tobytes()  # the same samples
+    for name in names:
+        assert stopped.aovs[name].tobytes() == two.aovs[name].tobytes(), name
+    coverage, depth, ids, doubtful = expected(sc, counts=np.full(W * H, 2))
+    ok = ~doubtful
+    np.testing.assert_array_equal(stopped.aovs["coverage"][ok], coverage[ok].astype(np.float32))
+    np.testing.assert_array_equal(stopped.aovs["object_id"][ok], ids[ok])
+
+
+def test_adaptive_aovs_use_each_pixels_own_count():
+    """With adaptive sampling every pixel has its own count (``film.adaptive_counts``); its
+    coverage, depth and id are those of its own samples, against the host's float64 traces."""
+    sc = scene(sampler="sobol")
+    r = warprt.Renderer(sc, device="cpu")
+    out = r.render(spp=SPP, progress=False, adaptive=True, aovs=["coverage", "depth", "object_id"])
+    counts = r._film.counts
+    assert counts is not None and counts.min() < counts.max()
+    coverage, depth, ids, doubtful = expected(sc, counts=counts)
+    ok = ~doubtful
+    assert ok.sum() > 0.8 * W * H
+    np.testing.assert_array_equal(out.aovs["coverage"][ok], coverage[ok].astype(np.float32))
+    np.testing.assert_array_equal(out.aovs["object_id"][ok], ids[ok])
+    finite = ok & np.isfinite(depth)
+    np.testing.assert_allclose(out.aovs["depth"][finite], depth[finite], rtol=1e-5)
 
 
 def test_as_warp_returns_every_aov_on_the_device():

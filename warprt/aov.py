@@ -61,7 +61,7 @@ from .build import DeviceScene
 from .camera import camera_frame_w, project
 from .errors import RenderError
 from .film import NO_LIMIT, FilmData
-from .records import KIND_BOX, KIND_MESH, KIND_SPHERE, CameraData, Features, SceneData
+from .records import KIND_BOX, KIND_MESH, KIND_NONE, KIND_SPHERE, CameraData, Features, SceneData
 from .scene.description import is_area_light
 from .trace import Hit, make_trace, to_object, to_world
 
@@ -133,27 +133,13 @@ def aov_mask(names) -> int:
 
 
 @wp.struct
-class AovSums:
-    """A pixel's AOV sums over its samples so far (held by the render kernel during a pass)."""
-
-    hits: int  # samples that hit a surface
-    depth: float
-    z: float
-    normal: wp.vec3  # Σ shading normals turned towards the camera
-    albedo: wp.vec3
-    position: wp.vec3
-    motion: wp.vec2
-    ids: wp.vec4i  # the first ID_SLOTS distinct object ids seen (-1: a free slot)
-    mats: wp.vec4i  # their materials
-    votes: wp.vec4i  # how many samples saw each
-
-
-@wp.struct
 class AovData:
     """What the render kernel writes the AOVs to. ``out`` holds the requested AOVs (one-element
-    arrays for the others); between passes its depth, z, normal, albedo, position and motion
-    hold their sums, ``hits`` and the id slots the rest of ``AovSums`` (one-element arrays where
-    a render never stops between passes: a batch)."""
+    arrays for the others); until a pixel's last sample its depth, z, normal, albedo, position
+    and motion hold their sums over the samples so far, ``hits`` how many of them hit, and the
+    id slots (``ids``, ``mats``, ``votes``: the first ID_SLOTS distinct object ids seen, their
+    materials and how many samples saw each; one-element arrays unless object_id or material
+    is asked for)."""
 
     out: AovBuffers
     hits: wp.array(dtype=int)
@@ -165,197 +151,267 @@ class AovData:
 
 
 @wp.func
-def aov_start(aov: AovData, mask: int, pixel: int, s0: int) -> AovSums:
-    """A pixel's sums before sample s0: none at sample 0, else those its last pass stored."""
-    a = AovSums()
-    a.ids = wp.vec4i(-1, -1, -1, -1)
-    a.mats = wp.vec4i(-1, -1, -1, -1)
-    if s0 > 0:
-        a.hits = aov.hits[pixel]
-        if (mask & AOV_DEPTH) != 0:
-            a.depth = aov.out.depth[pixel]
-        if (mask & AOV_Z) != 0:
-            a.z = aov.out.z[pixel]
-        if (mask & AOV_NORMAL) != 0:
-            a.normal = aov.out.normal[pixel]
-        if (mask & AOV_ALBEDO) != 0:
-            a.albedo = aov.out.albedo[pixel]
-        if (mask & AOV_POSITION) != 0:
-            a.position = aov.out.position[pixel]
-        if (mask & AOV_MOTION) != 0:
-            a.motion = aov.out.motion[pixel]
-        if (mask & AOV_IDS) != 0:
-            a.ids = aov.ids[pixel]
-            a.mats = aov.mats[pixel]
-            a.votes = aov.votes[pixel]
-    return a
+def aov_mean(total: float, inv: float, hits: int) -> float:
+    """Depth or z: the mean over the samples that hit, the miss value where none did."""
+    if hits == 0:
+        return wp.inf
+    return total * inv
 
 
 @wp.func
-def aov_write(out: AovBuffers, mask: int, slot: int, a: AovSums, n: int):
-    """The AOVs of entry ``slot`` from its sums over n samples (the rules of the module docstring)."""
-    if (mask & AOV_COVERAGE) != 0:
-        out.coverage[slot] = float(a.hits) / float(wp.max(n, 1))
-    if a.hits == 0:  # the miss values
-        if (mask & AOV_DEPTH) != 0:
-            out.depth[slot] = wp.inf
-        if (mask & AOV_Z) != 0:
-            out.z[slot] = wp.inf
-        if (mask & AOV_NORMAL) != 0:
-            out.normal[slot] = wp.vec3(0.0)
-        if (mask & AOV_ALBEDO) != 0:
-            out.albedo[slot] = wp.vec3(0.0)
-        if (mask & AOV_POSITION) != 0:
-            out.position[slot] = wp.vec3(0.0)
-        if (mask & AOV_MOTION) != 0:
-            out.motion[slot] = wp.vec2(0.0)
-        if (mask & AOV_OBJECT_ID) != 0:
-            out.object_id[slot] = -1
-        if (mask & AOV_MATERIAL) != 0:
-            out.material[slot] = -1
-        return
-    inv = 1.0 / float(a.hits)
-    if (mask & AOV_DEPTH) != 0:
-        out.depth[slot] = a.depth * inv
-    if (mask & AOV_Z) != 0:
-        out.z[slot] = a.z * inv
-    if (mask & AOV_NORMAL) != 0:
-        if wp.length(a.normal) > 0.0:
-            out.normal[slot] = wp.normalize(a.normal)
-        else:
-            out.normal[slot] = wp.vec3(0.0)
-    if (mask & AOV_ALBEDO) != 0:
-        out.albedo[slot] = a.albedo * inv
-    if (mask & AOV_POSITION) != 0:
-        out.position[slot] = a.position * inv
-    if (mask & AOV_MOTION) != 0:
-        out.motion[slot] = a.motion * inv
-    if (mask & AOV_IDS) != 0:
-        best = int(0)
-        for k in range(1, ID_SLOTS):
-            if a.votes[k] > a.votes[best]:  # strictly more: ties go to the id seen first
-                best = k
-        if (mask & AOV_OBJECT_ID) != 0:
-            out.object_id[slot] = a.ids[best]
-        if (mask & AOV_MATERIAL) != 0:
-            out.material[slot] = a.mats[best]
+def aov_inverse(hits: int) -> float:
+    """1 / hits (0 for none; 1 for one, exactly, without a division: one-sample renders)."""
+    if hits > 1:
+        return 1.0 / float(hits)
+    return float(hits)
 
 
 @wp.func
-def aov_store(aov: AovData, mask: int, pixel: int, a: AovSums, n: int, final: bool):
-    """A pixel's sums after a pass, n samples in all: its AOVs where the pass is the render's
-    last (``final``), else the sums for the next pass (``aov_start``)."""
-    if final:
-        aov_write(aov.out, mask, pixel, a, n)
-        return
-    aov.hits[pixel] = a.hits
-    if (mask & AOV_DEPTH) != 0:
-        aov.out.depth[pixel] = a.depth
-    if (mask & AOV_Z) != 0:
-        aov.out.z[pixel] = a.z
-    if (mask & AOV_NORMAL) != 0:
-        aov.out.normal[pixel] = a.normal
-    if (mask & AOV_ALBEDO) != 0:
-        aov.out.albedo[pixel] = a.albedo
-    if (mask & AOV_POSITION) != 0:
-        aov.out.position[pixel] = a.position
-    if (mask & AOV_MOTION) != 0:
-        aov.out.motion[pixel] = a.motion
-    if (mask & AOV_IDS) != 0:
-        aov.ids[pixel] = a.ids
-        aov.mats[pixel] = a.mats
-        aov.votes[pixel] = a.votes
+def aov_fraction(hits: int, n: int) -> float:
+    """Coverage: hits / n, correctly rounded (0 for no samples; no division for one)."""
+    if n > 1:
+        return float(hits) / float(n)
+    return float(hits)
+
+
+@wp.func
+def aov_normal(total: wp.vec3, hits: int) -> wp.vec3:
+    """The normal: the mean renormalised (0 where no sample hit). One sample's shading normal is
+    a unit vector already: it is kept as it is (a square root and a division less a pixel in a
+    one-sample render, a third of what the normal, depth and object_id cost there)."""
+    if hits == 1:
+        return total
+    if hits == 0 or not (wp.length(total) > 0.0):
+        return wp.vec3(0.0)
+    return wp.normalize(total)
+
+
+@wp.func
+def aov_vote(votes: wp.vec4i) -> int:
+    """The slot seen by the most samples, ties going to the one seen first (slot 0 when none
+    voted: its id is -1 then, the miss value)."""
+    best = int(0)
+    if votes[1] > votes[best]:  # strictly more: ties go to the id seen first
+        best = 1
+    if votes[2] > votes[best]:
+        best = 2
+    if votes[3] > votes[best]:
+        best = 3
+    return best
+
+
+@wp.func
+def aov_ids(aov: AovData, mask: int, pixel: int, ids: wp.vec4i, mats: wp.vec4i, votes: wp.vec4i):
+    """The object_id and material of a pixel from its id slots (``aov_vote``)."""
+    best = aov_vote(votes)
+    if (mask & AOV_OBJECT_ID) != 0:
+        aov.out.object_id[pixel] = ids[best]
+    if (mask & AOV_MATERIAL) != 0:
+        aov.out.material[pixel] = mats[best]
 
 
 @build_once
-def make_aov_add(F: Features):
-    """``aov_add`` for the render kernel of feature set F: the sums with one more camera sample
-    whose first hit is known (the motion of the visible point with F's own pose functions)."""
+def make_aov_sample(F: Features):
+    """``aov_sample`` for the render kernel of feature set F (the motion of the visible point
+    with F's own pose functions)."""
     trace = make_trace(F)
     sphere_center, instance_pose = trace.sphere_center, trace.instance_pose
     solid_pose, solid_rec = trace.solid_pose, trace.solid_rec
 
     @wp.func
-    def aov_add(scene: SceneData, cam: CameraData, aov: AovData, mask: int, a: AovSums, h: Hit, d: wp.vec3,
-                time: float) -> AovSums:
-        """``a`` with the camera sample along unit direction d at ``time`` whose first hit is h
-        (a surface, not a miss)."""
-        r = a
-        r.hits = a.hits + 1
-        if (mask & AOV_DEPTH) != 0:
-            r.depth = a.depth + h.t
-        if (mask & AOV_Z) != 0:
-            r.z = a.z + h.t * -wp.dot(d, camera_frame_w(cam, time))
-        if (mask & AOV_NORMAL) != 0:
-            nrm = h.ns
-            if wp.dot(nrm, d) > 0.0:
-                nrm = -nrm  # turned towards the camera
-            r.normal = a.normal + nrm
-        if (mask & AOV_ALBEDO) != 0:
-            m = scene.mats[h.mat]
-            if wp.max(m.emit) > 0.0:
-                r.albedo = a.albedo + m.emit
-            else:
-                r.albedo = a.albedo + m.kd
-        if (mask & AOV_POSITION) != 0:
-            r.position = a.position + h.p
-        if (mask & AOV_MOTION) != 0:
-            # the visible point followed over the whole shutter: where it is at open and at close
-            t0 = cam.t_open
-            t1 = cam.t_close
-            p0 = h.p
-            p1 = h.p
-            if wp.static(F.motion):  # (else nothing moves: p0 = p1)
-                if h.kind == KIND_SPHERE:
-                    c = sphere_center(scene, h.index, time)
-                    p0 = h.p + sphere_center(scene, h.index, t0) - c
-                    p1 = h.p + sphere_center(scene, h.index, t1) - c
-                if wp.static(F.meshes):
-                    if h.kind == KIND_MESH:
-                        p_obj = to_object(instance_pose(scene, h.index, time), h.p)
-                        p0 = to_world(instance_pose(scene, h.index, t0), p_obj)
-                        p1 = to_world(instance_pose(scene, h.index, t1), p_obj)
-                if wp.static(F.solids):
-                    if h.kind >= KIND_BOX:
-                        rec = solid_rec(scene, h.kind, h.index)
-                        p_obj = to_object(solid_pose(rec, time), h.p)
-                        p0 = to_world(solid_pose(rec, t0), p_obj)
-                        p1 = to_world(solid_pose(rec, t1), p_obj)
-            r.motion = a.motion + (project(cam, p1, t1) - project(cam, p0, t0))
-        if (mask & AOV_IDS) != 0:
-            oid = aov.idmap.ids[aov.idmap.base[h.kind] + h.index]
-            mid = int(-1)
-            if h.mat < aov.idmap.n_mats:
-                mid = h.mat
-            ids = a.ids
-            mats = a.mats
-            votes = a.votes
-            for k in range(ID_SLOTS):
-                if ids[k] == oid:
-                    votes[k] = votes[k] + 1
-                    break
-                if ids[k] == -1:
-                    ids[k] = oid
-                    mats[k] = mid
-                    votes[k] = 1
-                    break
-            r.ids = ids
-            r.mats = mats
-            r.votes = votes
-        return r
+    def point_motion(scene: SceneData, cam: CameraData, h: Hit, time: float) -> wp.vec2:
+        """Screen motion of the visible point h.p (seen at ``time``) from shutter open to close."""
+        t0 = cam.t_open
+        t1 = cam.t_close
+        p0 = h.p
+        p1 = h.p
+        if wp.static(F.motion):  # (else nothing moves: p0 = p1)
+            if h.kind == KIND_SPHERE:
+                c = sphere_center(scene, h.index, time)
+                p0 = h.p + sphere_center(scene, h.index, t0) - c
+                p1 = h.p + sphere_center(scene, h.index, t1) - c
+            if wp.static(F.meshes):
+                if h.kind == KIND_MESH:
+                    p_obj = to_object(instance_pose(scene, h.index, time), h.p)
+                    p0 = to_world(instance_pose(scene, h.index, t0), p_obj)
+                    p1 = to_world(instance_pose(scene, h.index, t1), p_obj)
+            if wp.static(F.solids):
+                if h.kind >= KIND_BOX:
+                    rec = solid_rec(scene, h.kind, h.index)
+                    p_obj = to_object(solid_pose(rec, time), h.p)
+                    p0 = to_world(solid_pose(rec, t0), p_obj)
+                    p1 = to_world(solid_pose(rec, t1), p_obj)
+        return project(cam, p1, t1) - project(cam, p0, t0)
 
-    return aov_add
+    @wp.func
+    def aov_sample(scene: SceneData, cam: CameraData, aov: AovData, mask: int, pixel: int, s: int, s1: int,
+                   final: bool, h: Hit, d: wp.vec3, time: float):
+        """Camera sample s of film entry ``pixel`` (along unit direction d at ``time``; first hit
+        h, or a miss): added to the pixel's sums, which sample 0 starts; where the pass is the
+        render's last (``final``) and the sample its last one (s1 - 1), the AOVs themselves
+        are written instead (the rules of the module docstring). The render kernel calls it for
+        each camera sample in sample order, so the sums are the same whatever the passes."""
+        hit = h.kind != KIND_NONE
+        last = final and s + 1 >= s1
+        hits = int(0)
+        if s > 0:
+            hits = aov.hits[pixel]
+        if hit:
+            hits = hits + 1
+        inv = float(0.0)
+        if last:
+            inv = aov_inverse(hits)
+            if (mask & AOV_COVERAGE) != 0:
+                aov.out.coverage[pixel] = aov_fraction(hits, s + 1)
+        else:
+            aov.hits[pixel] = hits
+        if (mask & AOV_DEPTH) != 0:
+            depth = float(0.0)
+            if s > 0:
+                depth = aov.out.depth[pixel]
+            if hit:
+                depth = depth + h.t
+            if last:
+                depth = aov_mean(depth, inv, hits)
+            aov.out.depth[pixel] = depth
+        if (mask & AOV_Z) != 0:
+            zc = float(0.0)
+            if s > 0:
+                zc = aov.out.z[pixel]
+            if hit:
+                zc = zc + h.t * -wp.dot(d, camera_frame_w(cam, time))
+            if last:
+                zc = aov_mean(zc, inv, hits)
+            aov.out.z[pixel] = zc
+        if (mask & AOV_NORMAL) != 0:
+            nsum = wp.vec3(0.0)
+            if s > 0:
+                nsum = aov.out.normal[pixel]
+            if hit:
+                nrm = h.ns
+                if wp.dot(nrm, d) > 0.0:
+                    nrm = -nrm  # turned towards the camera
+                nsum = nsum + nrm
+            if last:
+                nsum = aov_normal(nsum, hits)
+            aov.out.normal[pixel] = nsum
+        if (mask & AOV_ALBEDO) != 0:
+            alb = wp.vec3(0.0)
+            if s > 0:
+                alb = aov.out.albedo[pixel]
+            if hit:
+                m = scene.mats[h.mat]
+                if wp.max(m.emit) > 0.0:
+                    alb = alb + m.emit
+                else:
+                    alb = alb + m.kd
+            if last:
+                alb = alb * inv
+            aov.out.albedo[pixel] = alb
+        if (mask & AOV_POSITION) != 0:
+            pos = wp.vec3(0.0)
+            if s > 0:
+                pos = aov.out.position[pixel]
+            if hit:
+                pos = pos + h.p
+            if last:
+                pos = pos * inv
+            aov.out.position[pixel] = pos
+        if (mask & AOV_MOTION) != 0:
+            mot = wp.vec2(0.0)
+            if s > 0:
+                mot = aov.out.motion[pixel]
+            if hit:
+                mot = mot + point_motion(scene, cam, h, time)
+            if last:
+                mot = mot * inv
+            aov.out.motion[pixel] = mot
+        if (mask & AOV_IDS) != 0:
+            ids = wp.vec4i(-1, -1, -1, -1)
+            mats = wp.vec4i(-1, -1, -1, -1)
+            votes = wp.vec4i(0, 0, 0, 0)
+            if s > 0:
+                ids = aov.ids[pixel]
+                mats = aov.mats[pixel]
+                votes = aov.votes[pixel]
+            if hit:
+                oid = aov.idmap.ids[aov.idmap.base[h.kind] + h.index]
+                mid = int(-1)
+                if h.mat < aov.idmap.n_mats:
+                    mid = h.mat
+                # the id's slot, or the first free one (a fifth distinct id is not counted);
+                # slot by slot with constant indices, so the slots stay in registers
+                if ids[0] == oid:
+                    votes[0] = votes[0] + 1
+                elif ids[0] == -1:
+                    ids[0] = oid
+                    mats[0] = mid
+                    votes[0] = 1
+                elif ids[1] == oid:
+                    votes[1] = votes[1] + 1
+                elif ids[1] == -1:
+                    ids[1] = oid
+                    mats[1] = mid
+                    votes[1] = 1
+                elif ids[2] == oid:
+                    votes[2] = votes[2] + 1
+                elif ids[2] == -1:
+                    ids[2] = oid
+                    mats[2] = mid
+                    votes[2] = 1
+                elif ids[3] == oid:
+                    votes[3] = votes[3] + 1
+                elif ids[3] == -1:
+                    ids[3] = oid
+                    mats[3] = mid
+                    votes[3] = 1
+            if last:
+                aov_ids(aov, mask, pixel, ids, mats, votes)
+            else:
+                aov.ids[pixel] = ids
+                aov.mats[pixel] = mats
+                aov.votes[pixel] = votes
+
+    return aov_sample
 
 
 @build_once
 def _aov_kernel():
-    """The kernel that finishes the AOVs a render's last pass did not write (``AovTarget.finish``)."""
+    """The kernel that finishes the AOVs a render's last pass did not write (``AovTarget.finish``):
+    the same rules as ``aov_sample``'s last sample, from the sums of the pixel's n samples."""
 
     @wp.kernel(module="warprt_aov", enable_backward=False)
     def aov_finish(aov: AovData, mask: int, film: FilmData, done: int):
         pixel = wp.tid()
         n = wp.min(done, film.limit[pixel])
-        aov_write(aov.out, mask, pixel, aov_start(aov, mask, pixel, n), n)
+        hits = int(0)
+        if n > 0:
+            hits = aov.hits[pixel]
+        inv = aov_inverse(hits)
+        if (mask & AOV_COVERAGE) != 0:
+            aov.out.coverage[pixel] = aov_fraction(hits, n)
+        # (a pixel without samples: sums of zero, and so the miss values)
+        if (mask & AOV_DEPTH) != 0:
+            aov.out.depth[pixel] = aov_mean(wp.where(n > 0, aov.out.depth[pixel], 0.0), inv, hits)
+        if (mask & AOV_Z) != 0:
+            aov.out.z[pixel] = aov_mean(wp.where(n > 0, aov.out.z[pixel], 0.0), inv, hits)
+        if (mask & AOV_NORMAL) != 0:
+            aov.out.normal[pixel] = aov_normal(wp.where(n > 0, aov.out.normal[pixel], wp.vec3(0.0)), hits)
+        if (mask & AOV_ALBEDO) != 0:
+            aov.out.albedo[pixel] = wp.where(n > 0, aov.out.albedo[pixel], wp.vec3(0.0)) * inv
+        if (mask & AOV_POSITION) != 0:
+            aov.out.position[pixel] = wp.where(n > 0, aov.out.position[pixel], wp.vec3(0.0)) * inv
+        if (mask & AOV_MOTION) != 0:
+            aov.out.motion[pixel] = wp.where(n > 0, aov.out.motion[pixel], wp.vec2(0.0)) * inv
+        if (mask & AOV_IDS) != 0:
+            ids = wp.vec4i(-1, -1, -1, -1)
+            mats = wp.vec4i(-1, -1, -1, -1)
+            votes = wp.vec4i(0, 0, 0, 0)
+            if n > 0:
+                ids = aov.ids[pixel]
+                mats = aov.mats[pixel]
+                votes = aov.votes[pixel]
+            aov_ids(aov, mask, pixel, ids, mats, votes)
 
     return aov_finish
 
@@ -421,20 +477,20 @@ def no_aovs(device) -> AovData:
 class AovTarget:
     """The AOV buffers of one render (or batch) of ``count`` pixels: ``data`` for the render
     kernel, ``mask`` for ``RenderParams.aovs``. ``end``: the render's planned samples per pixel
-    (its pass that reaches them writes the AOVs; ``NO_LIMIT`` where no pass knows itself the
-    last, as in adaptive sampling, and ``finish`` writes them); ``between_passes=False`` where
-    every render is one pass (no sums are stored)."""
+    (the pass that reaches them writes the AOVs); ``NO_LIMIT`` where no pass can tell that it
+    is the last (adaptive sampling's counts come after its pilot), and ``finish`` writes them."""
 
-    def __init__(self, built: DeviceScene, names, count: int, end: int, between_passes: bool = True):
+    def __init__(self, built: DeviceScene, names, count: int, end: int):
         self.names = check_aov_names(names)
         self.mask = aov_mask(self.names)
         self.count = count
         self.device = dev = built.device
         data = AovData()
         data.out = _buffers(self.names, count, dev)
-        rows = count if between_passes else 1
-        data.hits = wp.empty(rows, dtype=int, device=dev)
-        ids = rows if self.mask & AOV_IDS else 1
+        # (sums that wait for the next sample or pass; unset memory costs nothing until a render
+        # needs it: a one-sample render writes the AOVs at once)
+        data.hits = wp.empty(count, dtype=int, device=dev)
+        ids = count if self.mask & AOV_IDS else 1
         data.ids, data.mats, data.votes = (wp.empty(ids, dtype=wp.vec4i, device=dev) for _ in range(3))
         data.idmap = id_map(built)
         data.end = int(end)

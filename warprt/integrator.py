@@ -36,7 +36,7 @@ import warp as wp
 
 from . import _warp
 from ._warp import build_once
-from .aov import AovData, AovSums, aov_start, aov_store, make_aov_add
+from .aov import AovData, make_aov_sample
 from .camera import camera_frame, camera_packet, camera_ray, lens_packet
 from .film import FilmData, claim_block, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
@@ -132,7 +132,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
     finish_hit = trace.finish_hit
     mesh_packet = trace.mesh_packet
     finish_packet_lane = trace.finish_packet_lane
-    aov_add = make_aov_add(F)
+    aov_sample = make_aov_sample(F)
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
     area_lights_packet = lights.area_lights_packet
@@ -201,15 +201,13 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         acc_sq = float(0.0)
         rays = int(0)
         dropped = int(0)
-        # the AOVs asked for (0: none) and the held pixel's AOV sums; the pass that reaches the
-        # render's planned samples writes the AOVs themselves (aov.aov_store)
+        # the AOVs asked for (0: none): each camera sample goes into its pixel's AOV sums (in
+        # sample order, as into the film), and the pass that reaches the render's planned samples
+        # writes the AOVs themselves (aov.make_aov_sample)
         aovs = params.aovs
-        a_sums = AovSums()
         a_final = s1 >= aov.end
         if wp.static(F.secondary):
             stack = wp.zeros(shape=STACK_SIZE, dtype=RayEntry)
-        if wp.static(shade_packets):
-            lane_hits = wp.zeros(shape=PACKET, dtype=Hit)  # a shaded packet's first hits, for the AOVs
         # the camera rays of PACKET_MIN to PACKET samples go together, through the analytic BVH and
         # the meshes where the scene has them (trace_packet, mesh_packet: the same hits as one by
         # one, fewer node visits per ray)
@@ -250,10 +248,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                 if g_s >= g_end:
                     # the pixel's samples are all taken: on to the next
                     if g_end <= s0 and s0 == 0:
-                        e_pix = pixel0 + (g_j & rm) * cam.width + (g_j >> sh)
-                        start_empty(film, e_pix)
-                        if aovs != 0:
-                            aov_store(aov, aovs, e_pix, aov_start(aov, aovs, e_pix, 0), 0, a_final)
+                        start_empty(film, pixel0 + (g_j & rm) * cam.width + (g_j >> sh))
                     g_j += 1
                     g_s = s0
                     if g_j < n_pix:
@@ -433,7 +428,13 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                            lane_i(pk.kind, k), lane_i(pk.index, k))
                         l_rays[k] = 1
                         if aovs != 0:
-                            lane_hits[k] = h
+                            jj = p_j
+                            sj = one_s + k
+                            if mixed:
+                                jj = lane_j[k]
+                                sj = lane_s[k]
+                            aov_sample(scene, cam, aov, aovs, pixel0 + (jj & rm) * cam.width + (jj >> sh), sj, s1, a_final,
+                                       h, d, lane(pk.time, k))
                         L = wp.vec3(0.0, 0.0, 0.0)
                         if h.kind == KIND_NONE:
                             L += mul_sat(wp.vec3(1.0, 1.0, 1.0), scene.background)
@@ -533,8 +534,6 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                         film.accum_sq[pixel] = acc_sq
                         film.rays[pixel] = rays
                         film.overflow[pixel] = dropped
-                        if aovs != 0:
-                            aov_store(aov, aovs, pixel, a_sums, wp.min(s1, film.limit[pixel]), a_final)
                     cur = jk
                     pixel = pixel0 + (cur & rm) * cam.width + (cur >> sh)
                     pkey = key
@@ -547,8 +546,6 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                         acc_sq = film.accum_sq[pixel]
                         rays = film.rays[pixel]
                         dropped = film.overflow[pixel]
-                    if aovs != 0:
-                        a_sums = aov_start(aov, aovs, pixel, s0)
                 for k in range(k_lo, k_hi):
                     if wp.static(shade_packets):
                         if shaded:
@@ -557,11 +554,6 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 rays += lane_i(lp.rays, k)  # (its area lights' shadow rays)
                             acc = acc + wp.vec3(film_r[k], film_g[k], film_b[k])
                             acc_sq = acc_sq + film_y2[k]
-                            if aovs != 0:
-                                if lane_hits[k].kind != KIND_NONE:
-                                    a_sums = aov_add(scene, cam, aov, aovs, a_sums, lane_hits[k],
-                                                     wp.vec3(lane(pk.dx, k), lane(pk.dy, k), lane(pk.dz, k)),
-                                                     lane(pk.time, k))
                             continue
                     s = one_s + k
                     if wp.static(packets):
@@ -612,11 +604,11 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                         else:
                             h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
+                        if aovs != 0 and e.depth == 0:  # the camera ray's first hit
+                            aov_sample(scene, cam, aov, aovs, pixel, s, s1, a_final, h, e.d, time)
                         if h.kind == KIND_NONE:
                             L += mul_sat(e.w, scene.background)
                             continue
-                        if aovs != 0 and e.depth == 0:  # the camera ray's first hit
-                            a_sums = aov_add(scene, cam, aov, aovs, a_sums, h, e.d, time)
                         front = wp.dot(e.d, h.ng) < 0.0
                         fc = toward_viewer(h.ng, h.ns, e.d)
                         ng = fc.ng
@@ -716,15 +708,6 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             film.accum_sq[pixel] = acc_sq
             film.rays[pixel] = rays
             film.overflow[pixel] = dropped
-            if aovs != 0:
-                aov_store(aov, aovs, pixel, a_sums, wp.min(s1, film.limit[pixel]), a_final)
-
-    @wp.func(inline=True)
-    def render_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
-                     s0: int, s1: int, film: FilmData, aov: AovData):
-        """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``
-        (and its AOVs to entry ``pixel`` of ``aov``'s buffers where ``params.aovs`` asks)."""
-        render_pixels(scene, cam, params, px, py, pixel, 1, s0, s1, film, 0, aov)
 
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
@@ -775,4 +758,4 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             for r in range(calls):
                 render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, run, s0, s1, film, 0, aov)
 
-    return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)
+    return SimpleNamespace(render=render_kernel, pixels=render_pixels, trace=trace)

@@ -62,7 +62,7 @@ from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
 
-BLOCK_ARG = 15  # position of ``block`` among the batch kernel's arguments
+PARAMS_ARG, BLOCK_ARG, AOV_ARG = 2, 15, 16  # positions of these among the batch kernel's arguments
 BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
 
 
@@ -246,10 +246,10 @@ def _pose_kernels():
 
 @build_once
 def batch_kernel_for(F: Features, packets: bool):
-    """The batched render kernel for a feature set: the single-image kernel's per-pixel function
-    on each world's tables (one Warp module per feature set and packet choice, compiled on first
-    use; ``packets``: :func:`warprt.integrator.packets_for` the device)."""
-    render_pixel = kernels_for(F, packets).pixel
+    """The batched render kernel for a feature set: the single-image kernel's function for a run
+    of pixels of one row, on each world's tables (one Warp module per feature set and packet
+    choice, compiled on first use; ``packets``: :func:`warprt.integrator.packets_for` the device)."""
+    render_pixels = kernels_for(F, packets).pixels
 
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
@@ -261,7 +261,10 @@ def batch_kernel_for(F: Features, packets: bool):
         # per thread (``run`` divides the width); or, with stride 0 (a CPU batch's default, run =
         # the width), each thread claims the next block of ``block`` rows from the film's counter
         # (film.claim_block) until none is left. A batch renders all its samples in one pass, so
-        # each pixel's colour is written here too, and its AOVs where the render asks for them
+        # each pixel's colour is written here too, and its AOVs where the render asks for them.
+        # The thread's pixels of a row go to render_pixels together (as in a single image): with
+        # few samples a camera packet takes several pixels, and what render_pixels sets up is set
+        # up once a row
         k0 = wp.tid() * run
         gy0 = int(0)
         px0 = int(0)
@@ -281,11 +284,10 @@ def batch_kernel_for(F: Features, packets: bool):
             sc = world_scene(scene, tables, image / n_cams)
             cam = cams[image]
             py = gy - image * height
+            g0 = gy * width + px0
+            render_pixels(sc, cam, params, px0, py, g0, run, s0, s1, film, 0, aov)
             for j in range(run):
-                px = px0 + j
-                g = gy * width + px
-                render_pixel(sc, cam, params, px, py, g, s0, s1, film, aov)
-                color[g] = film.accum[g] * inv_spp
+                color[g0 + j] = film.accum[g0 + j] * inv_spp
 
     return batch_render
 
@@ -540,25 +542,26 @@ class BatchRenderer:
         n_slices = (None if slices is None else _positive_int(slices, "slices")) if dev.is_cpu else 1
         params = render_params(self.scene, spp, int(seed), self.features)
         run = pixels_per_thread(dev, self.width)
-        # the AOVs come from the render's own samples (warprt.aov): its one pass writes them
+        inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
+                  self.height, self.width, run, 1.0 / float(spp), self._color, 1, no_aovs(dev)]
+        if not self._loaded:  # load the modules from this thread (workers must not race to build them)
+            self._update_tables()
+            wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)  # (no samples, no AOVs)
+            wp.synchronize_device(dev)
+            self.counters["compiles"] += 1
+            self._loaded = True
+        # the AOVs come from the render's own samples (warprt.aov): its one pass, which takes every
+        # sample, writes them
         target = None
         if aovs:
             target = self._aovs
             if target is None or target.names != aovs:
                 self._aovs = None  # (its buffers freed before the new ones are made)
-                target = self._aovs = AovTarget(self.built, aovs, self._color.shape[0], SPP_LIMIT + 1,
-                                                between_passes=False)
+                target = self._aovs = AovTarget(self.built, aovs, self._color.shape[0], spp)
             target.data.end = spp
+            params = render_params(self.scene, spp, int(seed), self.features)
             params.aovs = target.mask
-        inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
-                  self.height, self.width, run, 1.0 / float(spp), self._color, 1,
-                  no_aovs(dev) if target is None else target.data]
-        if not self._loaded:  # load the modules from this thread (workers must not race to build them)
-            self._update_tables()
-            wp.launch(self._kernel, dim=1, device=dev, inputs=inputs)
-            wp.synchronize_device(dev)
-            self.counters["compiles"] += 1
-            self._loaded = True
+            inputs[PARAMS_ARG], inputs[AOV_ARG] = params, target.data
         start = _time.perf_counter()
         self._update_tables()
         if self.bvh is not None:
