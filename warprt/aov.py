@@ -138,8 +138,8 @@ class AovData:
     arrays for the others); until a pixel's last sample its depth, z, normal, albedo, position
     and motion hold their sums over the samples so far, ``hits`` how many of them hit, and the
     id slots (``ids``, ``mats``, ``votes``: the first ID_SLOTS distinct object ids seen, their
-    materials and how many samples saw each; one-element arrays unless object_id or material
-    is asked for)."""
+    materials and how many samples saw each; one-element arrays unless object_id or material,
+    for ``mats`` material, is asked for)."""
 
     out: AovBuffers
     hits: wp.array(dtype=int)
@@ -332,8 +332,9 @@ def make_aov_sample(F: Features):
             votes = wp.vec4i(0, 0, 0, 0)
             if s > 0:
                 ids = aov.ids[pixel]
-                mats = aov.mats[pixel]
                 votes = aov.votes[pixel]
+                if (mask & AOV_MATERIAL) != 0:
+                    mats = aov.mats[pixel]
             if hit:
                 oid = aov.idmap.ids[aov.idmap.base[h.kind] + h.index]
                 mid = int(-1)
@@ -369,8 +370,9 @@ def make_aov_sample(F: Features):
                 aov_ids(aov, mask, pixel, ids, mats, votes)
             else:
                 aov.ids[pixel] = ids
-                aov.mats[pixel] = mats
                 aov.votes[pixel] = votes
+                if (mask & AOV_MATERIAL) != 0:
+                    aov.mats[pixel] = mats
 
     return aov_sample
 
@@ -409,8 +411,9 @@ def _aov_kernel():
             votes = wp.vec4i(0, 0, 0, 0)
             if n > 0:
                 ids = aov.ids[pixel]
-                mats = aov.mats[pixel]
                 votes = aov.votes[pixel]
+                if (mask & AOV_MATERIAL) != 0:
+                    mats = aov.mats[pixel]
             aov_ids(aov, mask, pixel, ids, mats, votes)
 
     return aov_finish
@@ -484,6 +487,7 @@ class AovTarget:
         self.names = check_aov_names(names)
         self.mask = aov_mask(self.names)
         self.count = count
+        self.built = built
         self.device = dev = built.device
         data = AovData()
         data.out = _buffers(self.names, count, dev)
@@ -491,7 +495,8 @@ class AovTarget:
         # needs it: a one-sample render writes the AOVs at once)
         data.hits = wp.empty(count, dtype=int, device=dev)
         ids = count if self.mask & AOV_IDS else 1
-        data.ids, data.mats, data.votes = (wp.empty(ids, dtype=wp.vec4i, device=dev) for _ in range(3))
+        data.ids, data.votes = (wp.empty(ids, dtype=wp.vec4i, device=dev) for _ in range(2))
+        data.mats = wp.empty(count if self.mask & AOV_MATERIAL else 1, dtype=wp.vec4i, device=dev)
         data.idmap = id_map(built)
         data.end = int(end)
         self.data = data
@@ -513,7 +518,11 @@ def shaped(bufs: AovBuffers, names, shape: tuple, as_warp: bool) -> dict:
     ``as_warp``, else numpy copies."""
     out = {}
     for name in names:
-        buf = getattr(bufs, name).reshape(shape)
-        out[name] = buf if as_warp else np.array(buf.numpy(), dtype=AOVS[name].out, copy=True)
+        buf = getattr(bufs, name)
+        if as_warp:
+            out[name] = buf.reshape(shape)
+        else:  # (reshaped in numpy: a Warp reshape costs more than the copy of a small image)
+            out[name] = np.array(buf.numpy(), dtype=AOVS[name].out, copy=True).reshape(
+                shape + ((AOVS[name].channels,) if AOVS[name].channels > 1 else ()))
     return out
 

@@ -265,6 +265,7 @@ class Renderer:
         self._film: Film | None = None  # kept between renders (_film_for)
         self._film_lock = threading.Lock()
         self._launches = None  # (what they were recorded for, the slices' recorded launches): _passes
+        self._aovs = None  # the AOV buffers kept with the film for the next render (_aovs_for)
 
     def update(self, scene: Scene) -> None:
         """Switch to a changed scene (moved objects, new materials, lights or camera...) without
@@ -393,6 +394,22 @@ class Renderer:
         self._pool.close()
         self._film = None
         self._launches = None
+        self._aovs = None
+
+    def _aovs_for(self, names: list, count: int, end: int, keep: bool) -> AovTarget | None:
+        """The AOV buffers of a render (None without AOVs). With ``keep`` (the render holds the
+        renderer's film and copies the AOVs out), those of the last such render are reused when
+        they fit: their allocation and the scene's id map cost a tenth of a small one-sample
+        render; AOVs handed out as ``wp.array``s get buffers of their own."""
+        if not names:
+            return None
+        target = self._aovs if keep else None
+        if target is None or target.names != names or target.count != count or target.built is not self.built:
+            target = AovTarget(self.built, names, count, end)
+            if keep:
+                self._aovs = target
+        target.data.end = int(end)
+        return target
 
     def _film_for(self, width: int, height: int) -> tuple[Film, bool]:
         """(film, held): the film a render accumulates into. The renderer keeps one between
@@ -473,7 +490,7 @@ class Renderer:
             # the AOVs, from the passes' own samples (warprt.aov): the pass that completes the planned
             # samples writes them, unless adaptive sampling decides the counts after its pilot
             counted = adaptive and spp >= ADAPTIVE_MIN_SPP
-            target = AovTarget(self.built, aovs, width * height, NO_LIMIT if counted else int(spp)) if aovs else None
+            target = self._aovs_for(aovs, width * height, NO_LIMIT if counted else int(spp), held and not as_warp)
             run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop,
                        aov=no_aovs(dev) if target is None else target.data)
 
