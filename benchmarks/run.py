@@ -237,60 +237,63 @@ def aov_scene(size: int) -> warprt.Scene:
 
 
 def _interleaved(fns: dict, repeats: int) -> dict:
-    """Seconds of each callable, ``repeats`` rounds interleaved (one call of each per round, in
-    turn), after one warm-up call each: {name: [seconds per round]}."""
+    """Wall and process CPU seconds of each callable, ``repeats`` rounds interleaved (one call of
+    each per round, in turn), after one warm-up call each: {name: {"wall": [...], "cpu": [...]}}."""
     for fn in fns.values():
         fn()
-    times = {k: [] for k in fns}
+    times = {k: {"wall": [], "cpu": []} for k in fns}
     for _ in range(repeats):
         for k, fn in fns.items():
-            start = time.perf_counter()
+            cpu, start = time.process_time(), time.perf_counter()
             fn()
-            times[k].append(time.perf_counter() - start)
+            times[k]["wall"].append(time.perf_counter() - start)
+            times[k]["cpu"].append(time.process_time() - cpu)
     return times
 
 
-def _ratio_summary(times: dict, base: str, other: str) -> dict:
-    """min and median seconds of both, min(other) / min(base), and the spread of the per-round
-    ratios (each round's pair ran back to back)."""
-    ratios = [o / b for o, b in zip(times[other], times[base])]
-    return {f"{base}_s_min": min(times[base]), f"{base}_s_median": statistics.median(times[base]),
-            f"{other}_s_min": min(times[other]), f"{other}_s_median": statistics.median(times[other]),
-            "ratio_of_minima": min(times[other]) / min(times[base]), "ratio_median": statistics.median(ratios),
+def _ratio_summary(base: list, other: list) -> dict:
+    """min and median seconds of both, min(other) / min(base), and the median and spread of the
+    per-round ratios (each round's pair ran back to back)."""
+    ratios = [o / b for o, b in zip(other, base)]
+    return {"colour_s_min": min(base), "colour_s_median": statistics.median(base),
+            "colour_aovs_s_min": min(other), "colour_aovs_s_median": statistics.median(other),
+            "ratio_of_minima": min(other) / min(base), "ratio_median": statistics.median(ratios),
             "ratio_spread": [min(ratios), max(ratios)]}
 
 
-def bench_aovs(rows, quick: bool, repeats: int = 7):
+def bench_aovs(rows, quick: bool, repeats: int = 15):
     """Colour alone against colour + depth + normal + object id (``AOV_NAMES``), interleaved,
-    min of ``repeats``: single renders (``Renderer.render``, at 1 and 8 spp) and a batch
-    (``BatchRenderer.render``: 16 worlds x 2 cameras at 128x128, 1 spp). Every timing is the
-    whole call (passes, AOVs, results), warm (compiled, after a warm-up call)."""
+    ``repeats`` rounds: single renders (``Renderer.render`` at 1 and 8 spp) and a batch
+    (``BatchRenderer.render``: 16 worlds x 2 cameras at 128x128, 1 spp). Each is timed on every
+    core (wall time of the whole call: passes, AOVs, results) and on one worker (process CPU
+    time: the least disturbed measure on a shared machine), warm (compiled, after a warm-up)."""
     from warprt.worlds import camera_quaternion
 
     out = {}
     size = 96 if quick else 256
     r = warprt.Renderer(aov_scene(size))
     r.compile()
-    for spp in (1, 8):
-        times = _interleaved({"colour": lambda: r.render(spp=spp, progress=False),
-                              "colour_aovs": lambda: r.render(spp=spp, progress=False, aovs=AOV_NAMES)}, repeats)
-        out[f"single_{size}px_{spp}spp"] = case = _ratio_summary(times, "colour", "colour_aovs")
-        rows.append({"benchmark": "aovs", "scene": f"single {size}x{size}", "spp": spp, "seconds": case["colour_s_min"],
-                     "seconds_aovs": case["colour_aovs_s_min"], "value": case["ratio_of_minima"]})
     worlds, cameras, px = (4, 2, 64) if quick else (16, 2, 128)
     br = warprt.BatchRenderer(aov_scene(px), worlds=worlds, cameras=cameras)
     eyes = [(0.0, 1.4, 4.0), (2.5, 2.0, 3.0)]
     poses = [np.concatenate([eye, camera_quaternion(eye, (0.0, 0.3, 0.0), (0.0, 1.0, 0.0))]) for eye in eyes]
     br.set_camera_poses(np.array([[poses[c % 2] for c in range(cameras)] for _ in range(worlds)]))
-
-    def batch(aovs=()):
-        br.render(spp=1, aovs=aovs)
-
-    times = _interleaved({"colour": batch, "colour_aovs": lambda: batch(AOV_NAMES)}, repeats)
-    out[f"batch_{worlds}x{cameras}_{px}px_1spp"] = case = _ratio_summary(times, "colour", "colour_aovs")
-    rows.append({"benchmark": "aovs", "scene": f"batch {worlds}x{cameras} at {px}x{px}", "spp": 1,
-                 "seconds": case["colour_s_min"], "seconds_aovs": case["colour_aovs_s_min"],
-                 "value": case["ratio_of_minima"]})
+    cases = {f"single_{size}px_{spp}spp": (lambda aovs, w, spp=spp: r.render(spp=spp, workers=w, progress=False,
+                                                                              aovs=aovs))
+             for spp in (1, 8)}
+    cases[f"batch_{worlds}x{cameras}_{px}px_1spp"] = lambda aovs, w: br.render(spp=1, workers=w, aovs=aovs)
+    for name, call in cases.items():
+        fns = {(aovs, w): (lambda aovs=aovs, w=w: call(aovs, w))
+               for w in (default_workers(), 1) for aovs in ((), AOV_NAMES)}
+        times = _interleaved(fns, repeats)
+        every = _ratio_summary(times[((), default_workers())]["wall"], times[(AOV_NAMES, default_workers())]["wall"])
+        one = _ratio_summary(times[((), 1)]["cpu"], times[(AOV_NAMES, 1)]["cpu"])
+        out[name] = {"wall": every, "cpu_1_worker": one, "workers": default_workers()}
+        rows.append({"benchmark": "aovs", "scene": name, "workers": default_workers(),
+                     "seconds": every["colour_s_min"], "seconds_aovs": every["colour_aovs_s_min"],
+                     "value": every["ratio_of_minima"]})
+        rows.append({"benchmark": "aovs", "scene": name, "workers": 1, "seconds": one["colour_s_min"],
+                     "seconds_aovs": one["colour_aovs_s_min"], "value": one["ratio_of_minima"]})
     out["aovs"] = list(AOV_NAMES)
     out["repeats"] = repeats
     return out
