@@ -220,27 +220,30 @@ def make_aov_sample(F: Features):
 
     @wp.func
     def point_motion(scene: SceneData, cam: CameraData, h: Hit, time: float) -> wp.vec2:
-        """Screen motion of the visible point h.p (seen at ``time``) from shutter open to close."""
+        """Screen motion of the visible point h.p (seen at ``time``) from shutter open to close.
+        Without the motion feature nothing moves, the camera neither: the two projections are the
+        same and the motion 0, exactly (and the kernel compiles without them)."""
+        if wp.static(not F.motion):
+            return wp.vec2(0.0)
         t0 = cam.t_open
         t1 = cam.t_close
         p0 = h.p
         p1 = h.p
-        if wp.static(F.motion):  # (else nothing moves: p0 = p1)
-            if h.kind == KIND_SPHERE:
-                c = sphere_center(scene, h.index, time)
-                p0 = h.p + sphere_center(scene, h.index, t0) - c
-                p1 = h.p + sphere_center(scene, h.index, t1) - c
-            if wp.static(F.meshes):
-                if h.kind == KIND_MESH:
-                    p_obj = to_object(instance_pose(scene, h.index, time), h.p)
-                    p0 = to_world(instance_pose(scene, h.index, t0), p_obj)
-                    p1 = to_world(instance_pose(scene, h.index, t1), p_obj)
-            if wp.static(F.solids):
-                if h.kind >= KIND_BOX:
-                    rec = solid_rec(scene, h.kind, h.index)
-                    p_obj = to_object(solid_pose(rec, time), h.p)
-                    p0 = to_world(solid_pose(rec, t0), p_obj)
-                    p1 = to_world(solid_pose(rec, t1), p_obj)
+        if h.kind == KIND_SPHERE:
+            c = sphere_center(scene, h.index, time)
+            p0 = h.p + sphere_center(scene, h.index, t0) - c
+            p1 = h.p + sphere_center(scene, h.index, t1) - c
+        if wp.static(F.meshes):
+            if h.kind == KIND_MESH:
+                p_obj = to_object(instance_pose(scene, h.index, time), h.p)
+                p0 = to_world(instance_pose(scene, h.index, t0), p_obj)
+                p1 = to_world(instance_pose(scene, h.index, t1), p_obj)
+        if wp.static(F.solids):
+            if h.kind >= KIND_BOX:
+                rec = solid_rec(scene, h.kind, h.index)
+                p_obj = to_object(solid_pose(rec, time), h.p)
+                p0 = to_world(solid_pose(rec, t0), p_obj)
+                p1 = to_world(solid_pose(rec, t1), p_obj)
         return project(cam, p1, t1) - project(cam, p0, t0)
 
     @wp.func
