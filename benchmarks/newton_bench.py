@@ -13,8 +13,13 @@ process, interleaved, after a warm-up that compiles everything:
   ``regular`` sampler (the pixel centre, Newton's own ray), on every core (``workers=2`` here)
   and on one (``workers=1``), so the ratio per core is in the table too.
 
+Each side renders the colour alone and the colour with depth (Newton's ``depth_image``, warprt's
+``depth`` AOV, from the same samples in the same launch); warprt also the colour with depth,
+normal and object id (its AOVs' cost against the colour alone).
+
 Reported: seconds per frame (min and median over the repeats), Mpix/s, warprt / Newton speed
-(wall time, and per core as process CPU time with one warprt worker against Newton's one);
+(wall time, and per core as process CPU time with one warprt worker against Newton's one), for
+the colour and for colour + depth;
 agreement where the two models coincide (hit mask, depth, shape index, lit colour: Newton keeps
 0.3 of the light in shadow and adds a hemispheric ambient term, so the colour is compared with
 its ambient off on lit pixels); and the per-step cost of updating poses from ``state.body_q`` on
@@ -44,6 +49,8 @@ import warp as wp  # noqa: E402
 import warprt  # noqa: E402
 
 FOV = 45.0
+DEPTH = ("depth",)
+AOVS = ("depth", "normal", "object_id")  # warprt's outputs beside the colour in the AOV timing
 LIGHT_DIRECTION = np.array([-1.0, 1.0, -1.0])  # Newton's default light, the way it travels (both sides)
 
 
@@ -97,10 +104,12 @@ class NewtonSide:
         self.index = wp.zeros(shape, dtype=wp.uint32, device="cpu")
         self.model = model
 
-    def frame(self, state, aovs: bool = False):
+    def frame(self, state, aovs: bool = False, depth: bool = False):
         kw = dict(hdr_color_image=self.hdr)
+        if aovs or depth:
+            kw.update(depth_image=self.depth)
         if aovs:
-            kw.update(depth_image=self.depth, shape_index_image=self.index)
+            kw.update(shape_index_image=self.index)
         self.model.bvh_refit_shapes(state)  # as warprt's update(state): the frame follows the state
         self.sensor.update(state, self.tf, self.rays, **kw)
         wp.synchronize_device("cpu")
@@ -118,10 +127,11 @@ class WarprtSide:
         self.workers = workers
         self.out = None
 
-    def frame(self, state, aovs: bool = False):
+    def frame(self, state, aovs=False):
+        """``aovs``: True for those the agreement reads, or a tuple of names."""
         self.r.update(state)
-        self.out = self.r.batch.render(spp=1, workers=self.workers,
-                                       aovs=("depth", "object_id", "normal", "albedo") if aovs else ())
+        names = ("depth", "object_id", "normal", "albedo") if aovs is True else tuple(aovs or ())
+        self.out = self.r.batch.render(spp=1, workers=self.workers, aovs=names)
 
 
 def timed(fn, state) -> tuple[float, float]:
@@ -221,14 +231,20 @@ def main(argv=None) -> int:
     for key, W, C, H, X in cases:
         model = build_model(W)
         state = model.state()
-        sides = {"newton": NewtonSide(model, C, X, H), "warprt": WarprtSide(model, C, X, H, workers=2),
-                 "warprt_1core": WarprtSide(model, C, X, H, workers=1)}
-        for s in sides.values():  # warm-up: compiles and first loads
-            s.frame(state)
+        newton, w2, w1 = NewtonSide(model, C, X, H), WarprtSide(model, C, X, H, workers=2), \
+            WarprtSide(model, C, X, H, workers=1)
+        # what each timed frame renders: the colour; the colour and depth; warprt's colour, depth,
+        # normal and object id
+        sides = {"newton": newton.frame, "newton_depth": lambda st: newton.frame(st, depth=True),
+                 "warprt": w2.frame, "warprt_depth": lambda st: w2.frame(st, aovs=DEPTH),
+                 "warprt_aovs": lambda st: w2.frame(st, aovs=AOVS),
+                 "warprt_1core": w1.frame, "warprt_1core_depth": lambda st: w1.frame(st, aovs=DEPTH)}
+        for frame in sides.values():  # warm-up: compiles and first loads
+            frame(state)
         times, cpu = {k: [] for k in sides}, {k: [] for k in sides}
         for _ in range(args.repeats):
-            for k, s in sides.items():
-                wall, cpu_s = timed(s.frame, state)
+            for k, frame in sides.items():
+                wall, cpu_s = timed(frame, state)
                 times[k].append(wall)
                 cpu[k].append(cpu_s)
         pix = W * C * H * X
@@ -242,6 +258,18 @@ def main(argv=None) -> int:
         case["speed_ratio_spread"] = [min(ratios), max(ratios)]
         case["speed_ratio_1core"] = case["warprt_1core"]["mpix_s"] / case["newton"]["mpix_s"]
         case["speed_ratio_cpu"] = case["newton"]["cpu_s_min"] / case["warprt_1core"]["cpu_s_min"]
+        # with depth on both sides
+        case["speed_ratio_depth"] = case["newton_depth"]["s_min"] / case["warprt_depth"]["s_min"]
+        ratios_d = [tn / tw for tn, tw in zip(times["newton_depth"], times["warprt_depth"])]
+        case["speed_ratio_depth_spread"] = [min(ratios_d), max(ratios_d)]
+        case["speed_ratio_depth_1core"] = case["newton_depth"]["s_min"] / case["warprt_1core_depth"]["s_min"]
+        case["speed_ratio_depth_cpu"] = case["newton_depth"]["cpu_s_min"] / case["warprt_1core_depth"]["cpu_s_min"]
+        # what the outputs beside the colour cost each side (per round: the pair ran back to back)
+        for k, base in (("newton_depth", "newton"), ("warprt_depth", "warprt"), ("warprt_aovs", "warprt"),
+                        ("warprt_1core_depth", "warprt_1core")):
+            r = [a / b for a, b in zip(times[k], times[base])]
+            case[f"{k}_over_colour"] = {"of_minima": case[k]["s_min"] / case[base]["s_min"],
+                                        "median": statistics.median(r), "spread": [min(r), max(r)]}
         case["agreement"] = agreement(model, C, X, H)
         if key == "a":
             case["pose_update"] = pose_update_cost(model, C, X, H, steps=10 if args.quick else 50)
@@ -250,6 +278,14 @@ def main(argv=None) -> int:
               f"warprt {case['warprt']['mpix_s']:.2f} (2 threads), {case['warprt_1core']['mpix_s']:.2f} (1); "
               f"warprt/Newton {case['speed_ratio']:.2f}x (per-repeat {ratios and min(ratios):.2f}-"
               f"{max(ratios):.2f}), per core {case['speed_ratio_1core']:.2f}x (CPU time {case['speed_ratio_cpu']:.2f}x)")
+        print(f"    colour + depth: Newton {case['newton_depth']['mpix_s']:.2f} Mpix/s, warprt "
+              f"{case['warprt_depth']['mpix_s']:.2f}; warprt/Newton {case['speed_ratio_depth']:.2f}x (per-repeat "
+              f"{ratios_d and min(ratios_d):.2f}-{max(ratios_d):.2f}), per core {case['speed_ratio_depth_1core']:.2f}x "
+              f"(CPU time {case['speed_ratio_depth_cpu']:.2f}x)")
+        print("    over the colour alone: " + ", ".join(
+            f"{k} {v['of_minima']:.3f} (median {v['median']:.3f}, {v['spread'][0]:.3f}-{v['spread'][1]:.3f})"
+            for k, v in ((k, case[f"{k}_over_colour"]) for k in ("newton_depth", "warprt_depth", "warprt_aovs",
+                                                                  "warprt_1core_depth"))))
         print(f"    agreement: {json.dumps(case['agreement'])}")
         if "pose_update" in case:
             print(f"    pose update from body_q: {case['pose_update']['update_ms_median']:.3f} ms median "

@@ -221,6 +221,85 @@ def bench_specialisation(rows, quick: bool, rounds: int = 9):
             "ratios": ratios, "specialised_times_s": t_spec, "full_times_s": t_full}
 
 
+AOV_NAMES = ("depth", "normal", "object_id")  # the issue's case: colour + depth + normal + object id
+
+
+def aov_scene(size: int) -> warprt.Scene:
+    """A plane, 6 spheres and a point light (the AOV benchmark's scene)."""
+    shapes = (warprt.Plane(material="floor"),) + tuple(
+        warprt.Sphere(center=(-1.5 + 0.6 * k, 0.3 + 0.05 * k, -0.4 * (k % 3)), radius=0.3, material=f"m{k % 2}")
+        for k in range(6))
+    return warprt.Scene(camera=warprt.Camera(eye=(0, 1.4, 4), look_at=(0, 0.3, 0), width=size, height=size),
+                        shapes=shapes, materials={"m0": warprt.Material(kd=(0.7, 0.4, 0.2), ks=0.3, p=30),
+                                                  "m1": warprt.Material(kd=(0.2, 0.4, 0.8)),
+                                                  "floor": warprt.Material(kd=0.7)},
+                        lights=(warprt.PointLight(position=(2, 4, 3), intensity=0.8),), ambient=0.08,
+                        render=warprt.RenderSettings(spp=1))
+
+
+def _interleaved(fns: dict, repeats: int) -> dict:
+    """Wall and process CPU seconds of each callable, ``repeats`` rounds interleaved (one call of
+    each per round, in turn), after one warm-up call each: {name: {"wall": [...], "cpu": [...]}}."""
+    for fn in fns.values():
+        fn()
+    times = {k: {"wall": [], "cpu": []} for k in fns}
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            cpu, start = time.process_time(), time.perf_counter()
+            fn()
+            times[k]["wall"].append(time.perf_counter() - start)
+            times[k]["cpu"].append(time.process_time() - cpu)
+    return times
+
+
+def _ratio_summary(base: list, other: list) -> dict:
+    """min and median seconds of both, min(other) / min(base), and the median and spread of the
+    per-round ratios (each round's pair ran back to back)."""
+    ratios = [o / b for o, b in zip(other, base)]
+    return {"colour_s_min": min(base), "colour_s_median": statistics.median(base),
+            "colour_aovs_s_min": min(other), "colour_aovs_s_median": statistics.median(other),
+            "ratio_of_minima": min(other) / min(base), "ratio_median": statistics.median(ratios),
+            "ratio_spread": [min(ratios), max(ratios)]}
+
+
+def bench_aovs(rows, quick: bool, repeats: int = 15):
+    """Colour alone against colour + depth + normal + object id (``AOV_NAMES``), interleaved,
+    ``repeats`` rounds: single renders (``Renderer.render`` at 1 and 8 spp) and a batch
+    (``BatchRenderer.render``: 16 worlds x 2 cameras at 128x128, 1 spp). Each is timed on every
+    core (wall time of the whole call: passes, AOVs, results) and on one worker (process CPU
+    time: the least disturbed measure on a shared machine), warm (compiled, after a warm-up)."""
+    from warprt.worlds import camera_quaternion
+
+    out = {}
+    size = 96 if quick else 256
+    r = warprt.Renderer(aov_scene(size))
+    r.compile()
+    worlds, cameras, px = (4, 2, 64) if quick else (16, 2, 128)
+    br = warprt.BatchRenderer(aov_scene(px), worlds=worlds, cameras=cameras)
+    eyes = [(0.0, 1.4, 4.0), (2.5, 2.0, 3.0)]
+    poses = [np.concatenate([eye, camera_quaternion(eye, (0.0, 0.3, 0.0), (0.0, 1.0, 0.0))]) for eye in eyes]
+    br.set_camera_poses(np.array([[poses[c % 2] for c in range(cameras)] for _ in range(worlds)]))
+    cases = {f"single_{size}px_{spp}spp": (lambda aovs, w, spp=spp: r.render(spp=spp, workers=w, progress=False,
+                                                                              aovs=aovs))
+             for spp in (1, 8)}
+    cases[f"batch_{worlds}x{cameras}_{px}px_1spp"] = lambda aovs, w: br.render(spp=1, workers=w, aovs=aovs)
+    for name, call in cases.items():
+        fns = {(aovs, w): (lambda aovs=aovs, w=w: call(aovs, w))
+               for w in (default_workers(), 1) for aovs in ((), AOV_NAMES)}
+        times = _interleaved(fns, repeats)
+        every = _ratio_summary(times[((), default_workers())]["wall"], times[(AOV_NAMES, default_workers())]["wall"])
+        one = _ratio_summary(times[((), 1)]["cpu"], times[(AOV_NAMES, 1)]["cpu"])
+        out[name] = {"wall": every, "cpu_1_worker": one, "workers": default_workers()}
+        rows.append({"benchmark": "aovs", "scene": name, "workers": default_workers(),
+                     "seconds": every["colour_s_min"], "seconds_aovs": every["colour_aovs_s_min"],
+                     "value": every["ratio_of_minima"]})
+        rows.append({"benchmark": "aovs", "scene": name, "workers": 1, "seconds": one["colour_s_min"],
+                     "seconds_aovs": one["colour_aovs_s_min"], "value": one["ratio_of_minima"]})
+    out["aovs"] = list(AOV_NAMES)
+    out["repeats"] = repeats
+    return out
+
+
 def _icosphere(subdivisions: int):
     import trimesh
 
@@ -453,14 +532,14 @@ def bench_input_checks(rows, quick: bool, pairs: int = 15):
 # the results.csv "benchmark" values each step writes (for --merge)
 STEP_ROWS = {"compile": ("compile_cold", "compile_cached"), "throughput": ("throughput",),
              "specialisation": ("specialisation",), "growth": ("triangles", "spheres"),
-             "error": ("error_vs_time", "equal_error_speedup"), "checks": ("input_checks",)}
+             "error": ("error_vs_time", "equal_error_speedup"), "checks": ("input_checks",), "aovs": ("aovs",)}
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default=str(ROOT / "docs" / "benchmarks"))
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--only", default="compile,throughput,specialisation,growth,error,checks")
+    parser.add_argument("--only", default="compile,throughput,specialisation,aovs,growth,error,checks")
     parser.add_argument("--merge", action="store_true",
                         help="update only the measured sections of an existing results.json / results.csv "
                              "(with --only), keeping the others")
@@ -476,6 +555,7 @@ def main(argv=None) -> int:
     steps = [("compile", lambda: bench_compile(rows)),
              ("throughput", lambda: bench_throughput(rows, args.quick)),
              ("specialisation", lambda: bench_specialisation(rows, args.quick)),
+             ("aovs", lambda: bench_aovs(rows, args.quick)),
              ("growth", lambda: bench_growth(rows, charts, args.quick)),
              ("error", lambda: bench_error_vs_time(rows, charts, args.quick)),
              ("checks", lambda: bench_input_checks(rows, args.quick))]

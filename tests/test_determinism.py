@@ -56,6 +56,26 @@ def test_bit_identical_for_any_workers_slices_and_passes(renderer, options):
     assert base.rays == other.rays  # the same rays were traced, not just the same sums
 
 
+AOV_NAMES = ("depth", "z", "normal", "albedo", "position", "coverage", "object_id", "material", "motion")
+
+
+@pytest.mark.parametrize("options", [
+    dict(workers=2),
+    dict(workers=2, slices=7),
+    dict(workers=1, pass_spp=1),
+    dict(workers=2, pass_spp=3, slices=3),
+], ids=lambda o: ",".join(f"{k}={v}" for k, v in o.items()))
+def test_aovs_bit_identical_for_any_workers_slices_and_passes(renderer, options):
+    """The AOVs come from the camera samples of the recursive kernel (its ray stack's first
+    entry), added in sample order: the same bit for bit whatever the split, like the image."""
+    base = renderer.render(spp=8, seed=3, workers=1, slices=16, pass_spp=1, progress=False, aovs=AOV_NAMES)
+    other = renderer.render(spp=8, seed=3, progress=False, aovs=AOV_NAMES, **options)
+    assert base.image.tobytes() == other.image.tobytes()
+    for name in AOV_NAMES:
+        assert base.aovs[name].tobytes() == other.aovs[name].tobytes(), name
+    assert 0 < base.aovs["coverage"].mean() < 1 and len(np.unique(base.aovs["object_id"])) == 5
+
+
 def test_every_row_rendered_for_any_slices():
     # fresh renderers (a reused film would hide rows a slicing leaves out: they keep the last sums);
     # slices=None: the workers claim blocks of rows (two passes: the counter starts again)
@@ -150,6 +170,19 @@ def test_mesh_kernels_blocks_column_by_column_equal_row_by_row():
         b = warprt.Renderer(mesh_scene(), device="cpu").render(spp=3, seed=4, progress=False, **options)
         assert a.image.tobytes() == b.image.tobytes() and a.rays == b.rays
         assert np.all(np.isfinite(b.image)) and b.image.max() > 0.0
+
+
+def test_mesh_kernels_aovs_column_by_column_equal_row_by_row():
+    # the AOVs of a block of 4 rows taken column by column (render_pixels' patches of pixels in a
+    # packet) are those of one-row blocks, bit for bit
+    names = ("depth", "normal", "coverage", "object_id")
+    a = warprt.Renderer(mesh_scene(), device="cpu").render(spp=3, seed=4, workers=1, slices=10, progress=False,
+                                                           aovs=names)
+    for options in (dict(workers=1), dict(workers=2, pass_spp=1)):
+        b = warprt.Renderer(mesh_scene(), device="cpu").render(spp=3, seed=4, progress=False, aovs=names, **options)
+        for name in names:
+            assert a.aovs[name].tobytes() == b.aovs[name].tobytes(), (name, options)
+    assert set(np.unique(a.aovs["object_id"])) == {-1, 0, 1}
 
 
 def test_slices_cover_every_row_once():

@@ -103,6 +103,26 @@ def test_camera_rays_one_by_one_give_the_packets_images_bit_for_bit(device):
         assert ra.image.mean() > 0.01
 
 
+def test_camera_rays_one_by_one_give_the_packets_aovs_bit_for_bit(device):
+    """Every AOV comes from the camera samples' own first hits, in packets (a shaded packet's lanes,
+    CPU) or one by one (CUDA's path), in the same order: the same AOVs bit for bit, plain and
+    adaptive (a scene without secondary rays, whose packets are lit together: the kernels of the
+    test above)."""
+    from pathlib import Path
+
+    from warprt.aov import AOV_NAMES
+
+    scene = warprt.load_scene(str(Path(__file__).parents[1] / "scenes" / "soft_shadows.toml"))
+    scene = scene.replace(camera=dataclasses.replace(scene.camera, width=40, height=30)).with_settings(sampler="sobol")
+    a, b = (warprt.Renderer(scene, device=device, packets=p) for p in (True, False))
+    for adaptive in (False, True):
+        ra, rb = (r.render(spp=11, seed=5, progress=False, adaptive=adaptive, aovs=AOV_NAMES) for r in (a, b))
+        assert ra.image.tobytes() == rb.image.tobytes()
+        for name in AOV_NAMES:
+            assert ra.aovs[name].tobytes() == rb.aovs[name].tobytes(), (name, adaptive)
+        assert len(np.unique(ra.aovs["object_id"])) >= 3 and 0 < ra.aovs["coverage"].mean() <= 1
+
+
 def test_packets_are_the_cpus_and_one_by_one_cudas():
     from types import SimpleNamespace
 

@@ -1,10 +1,22 @@
 """Arbitrary output variables (AOVs): per-pixel geometry next to the colour, from the same samples.
 
-Each AOV is averaged over the very camera samples that made the pixel's colour (as pbrt-v4's
-G-buffer film does): the AOV kernel regenerates each sample's camera ray from the same sampler,
-seed and dimensions (film position, lens point, time), so AOVs are antialiased, defocused and
-motion-blurred exactly like the colour. With adaptive sampling a pixel's AOVs use its own count;
-an interrupted render's AOVs use the samples it finished.
+Each AOV is averaged over the very camera samples that made the pixel's colour, in the same
+kernel launch (as pbrt-v4's G-buffer film does): the render kernel (``integrator.render_pixels``)
+adds each camera sample's first hit to the pixel's AOV sums (``make_aov_add``) where it adds the
+sample's radiance to the film, so AOVs are antialiased, defocused and motion-blurred exactly like
+the colour, with camera rays in packets or one by one alike. The sums are taken sample by sample
+in sample order by the thread that owns the pixel, so AOVs are bit-identical for any worker
+count, slices or pass split. With adaptive sampling a pixel's AOVs use its own count; an
+interrupted render's AOVs use the samples it finished.
+
+A render asks for AOVs with a run-time mask (``RenderParams.aovs``, one bit per AOV:
+``AOV_BITS``) and an ``AovData`` (``AovTarget`` makes both); a render without AOVs runs the same
+kernel with the mask 0. Between passes a pixel's sums wait in the AOV buffers themselves (depth,
+z, normal, albedo, position and motion hold their sums), in ``AovData.hits`` and in the id slots;
+the pass that completes a render's planned samples (``AovData.end``) writes the AOVs themselves
+(``aov_write``), and a render that stops short of them (Ctrl-C, ``stop``, a time budget or a
+target error), or an adaptive one, has them written by the small ``aov_finish`` kernel
+(``AovTarget.finish``).
 
 Rules, in one place:
 
@@ -21,7 +33,7 @@ Rules, in one place:
 name      shape   meaning
 ========= ======= =====================================================================
 depth     (H, W)  distance from the eye along the ray (scene units)
-z         (H, W)  camera-space depth: distance along the viewing axis -w
+z         (H, W)  camera-space depth: distance along the viewing axis -w at the sample's time
 normal    (H,W,3) unit world shading normal, turned towards the camera
 albedo    (H,W,3) the diffuse reflectance kd of the surface (Le for an area light)
 position  (H,W,3) world position of the hit
@@ -39,7 +51,6 @@ albedo ``albedo.R albedo.G albedo.B``, ids as UINT channels holding id + 1 (0: n
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,14 +58,12 @@ import warp as wp
 
 from ._warp import build_once
 from .build import DeviceScene
-from .camera import camera_frame_w, camera_ray, project
+from .camera import camera_frame_w, project
 from .errors import RenderError
-from .film import FilmData
-from .integrator import DIM_FILM, DIM_LENS, DIM_TIME
-from .records import KIND_BOX, KIND_MESH, KIND_NONE, KIND_SPHERE, CameraData, Features, RenderParams, SceneData
-from .sampling import pixel_key, sample_1d_keyed, sample_2d_keyed
+from .film import NO_LIMIT, FilmData
+from .records import KIND_BOX, KIND_MESH, KIND_NONE, KIND_SPHERE, CameraData, Features, SceneData
 from .scene.description import is_area_light
-from .trace import make_trace, to_object, to_world
+from .trace import Hit, make_trace, to_object, to_world
 
 
 @dataclass(frozen=True)
@@ -107,133 +116,310 @@ class IdMap:
     n_mats: int
 
 
+# the run-time mask of the AOVs a render asks for (RenderParams.aovs): one bit per AOV, in AOVS' order
+AOV_BITS = {name: 1 << i for i, name in enumerate(AOV_NAMES)}
+AOV_DEPTH, AOV_Z, AOV_NORMAL, AOV_ALBEDO, AOV_POSITION = (AOV_BITS[n] for n in ("depth", "z", "normal", "albedo", "position"))
+AOV_COVERAGE, AOV_OBJECT_ID, AOV_MATERIAL, AOV_MOTION = (AOV_BITS[n] for n in ("coverage", "object_id", "material",
+                                                                                 "motion"))
+AOV_IDS = AOV_OBJECT_ID | AOV_MATERIAL  # (both come from the same votes)
+
+
+def aov_mask(names) -> int:
+    """The run-time mask (``RenderParams.aovs``) of the named AOVs."""
+    mask = 0
+    for name in names:
+        mask |= AOV_BITS[name]
+    return mask
+
+
+@wp.struct
+class AovData:
+    """What the render kernel writes the AOVs to. ``out`` holds the requested AOVs (one-element
+    arrays for the others); until a pixel's last sample its depth, z, normal, albedo, position
+    and motion hold their sums over the samples so far, ``hits`` how many of them hit, and the
+    id slots (``ids``, ``mats``, ``votes``: the first ID_SLOTS distinct object ids seen, their
+    materials and how many samples saw each; one-element arrays unless object_id or material,
+    for ``mats`` material, is asked for)."""
+
+    out: AovBuffers
+    hits: wp.array(dtype=int)
+    ids: wp.array(dtype=wp.vec4i)
+    mats: wp.array(dtype=wp.vec4i)
+    votes: wp.array(dtype=wp.vec4i)
+    idmap: IdMap
+    end: int  # a pass whose samples end here or later is the render's last: it writes the AOVs themselves
+
+
+@wp.func
+def aov_mean(total: float, inv: float, hits: int) -> float:
+    """Depth or z: the mean over the samples that hit, the miss value where none did."""
+    if hits == 0:
+        return wp.inf
+    return total * inv
+
+
+@wp.func
+def aov_inverse(hits: int) -> float:
+    """1 / hits (0 for none; 1 for one, exactly, without a division: one-sample renders)."""
+    if hits > 1:
+        return 1.0 / float(hits)
+    return float(hits)
+
+
+@wp.func
+def aov_fraction(hits: int, n: int) -> float:
+    """Coverage: hits / n, correctly rounded (0 for no samples; no division for one)."""
+    if n > 1:
+        return float(hits) / float(n)
+    return float(hits)
+
+
+@wp.func
+def aov_normal(total: wp.vec3, hits: int) -> wp.vec3:
+    """The normal: the mean renormalised (0 where no sample hit). One sample's shading normal is
+    a unit vector already: it is kept as it is (a square root and a division less a pixel in a
+    one-sample render, a third of what the normal, depth and object_id cost there)."""
+    if hits == 1:
+        return total
+    if hits == 0 or not (wp.length(total) > 0.0):
+        return wp.vec3(0.0)
+    return wp.normalize(total)
+
+
+@wp.func
+def aov_vote(votes: wp.vec4i) -> int:
+    """The slot seen by the most samples, ties going to the one seen first (slot 0 when none
+    voted: its id is -1 then, the miss value)."""
+    best = int(0)
+    if votes[1] > votes[best]:  # strictly more: ties go to the id seen first
+        best = 1
+    if votes[2] > votes[best]:
+        best = 2
+    if votes[3] > votes[best]:
+        best = 3
+    return best
+
+
+@wp.func
+def aov_ids(aov: AovData, mask: int, pixel: int, ids: wp.vec4i, mats: wp.vec4i, votes: wp.vec4i):
+    """The object_id and material of a pixel from its id slots (``aov_vote``)."""
+    best = aov_vote(votes)
+    if (mask & AOV_OBJECT_ID) != 0:
+        aov.out.object_id[pixel] = ids[best]
+    if (mask & AOV_MATERIAL) != 0:
+        aov.out.material[pixel] = mats[best]
+
+
 @build_once
-def aov_functions():
-    """The per-pixel AOV function (shared by the single-image and the batch AOV kernels) with the
-    tracing of ``Features.full()`` (runtime checks stand in for the render kernel's switches)."""
-    trace = make_trace(Features.full())
-    closest_hit, sphere_center, instance_pose = trace.closest_hit, trace.sphere_center, trace.instance_pose
+def make_aov_sample(F: Features):
+    """``aov_sample`` for the render kernel of feature set F (the motion of the visible point
+    with F's own pose functions)."""
+    trace = make_trace(F)
+    sphere_center, instance_pose = trace.sphere_center, trace.instance_pose
     solid_pose, solid_rec = trace.solid_pose, trace.solid_rec
 
     @wp.func
-    def aov_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
-                  n: int, idmap: IdMap, out: AovBuffers, slot: int):
-        """AOVs of raster pixel (px, py) from its samples [0, n) (keys of film entry ``pixel``),
-        written to entry ``slot`` of ``out``."""
-        pkey = pixel_key(params.seed, pixel)
-        hits = int(0)
-        depth = float(0.0)
-        zc = float(0.0)
-        nsum = wp.vec3(0.0)
-        alb = wp.vec3(0.0)
-        pos = wp.vec3(0.0)
-        mot = wp.vec2(0.0)
-        ids = wp.vec4i(-1, -1, -1, -1)
-        mats = wp.vec4i(-1, -1, -1, -1)
-        votes = wp.vec4i(0, 0, 0, 0)
-        for s in range(n):
-            # the render kernel's camera sample (integrator.render_pixel), dimension for dimension
-            uf = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_FILM))
-            time = cam.t_open
-            if params.moving != 0 and cam.t_close > cam.t_open:
-                ut = sample_1d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_TIME))
-                time = cam.t_open + (cam.t_close - cam.t_open) * ut
-            ul = wp.vec2(0.5, 0.5)
-            if cam.lens_radius > 0.0:
-                ul = sample_2d_keyed(params.sampler, pkey, s, params.spp, wp.uint32(DIM_LENS))
-            ray = camera_ray(cam, float(px) + uf[0], float(py) + uf[1], ul, time)
-            h = closest_hit(scene, ray.o, ray.d, params.t_min, params.t_max, time)
-            if h.kind == KIND_NONE:
-                continue
-            hits += 1
-            depth += h.t
-            zc += h.t * -wp.dot(ray.d, camera_frame_w(cam, time))
-            nrm = h.ns
-            if wp.dot(nrm, ray.d) > 0.0:
-                nrm = -nrm
-            nsum += nrm
-            pos += h.p
-            m = scene.mats[h.mat]
-            if wp.max(m.emit) > 0.0:
-                alb += m.emit
-            else:
-                alb += m.kd
-            # the visible point followed over the whole shutter: where it is at open and at close
-            t0 = cam.t_open
-            t1 = cam.t_close
-            p0 = h.p
-            p1 = h.p
-            if h.kind == KIND_SPHERE:
-                c = sphere_center(scene, h.index, time)
-                p0 = h.p + sphere_center(scene, h.index, t0) - c
-                p1 = h.p + sphere_center(scene, h.index, t1) - c
-            elif h.kind == KIND_MESH:
+    def point_motion(scene: SceneData, cam: CameraData, h: Hit, time: float) -> wp.vec2:
+        """Screen motion of the visible point h.p (seen at ``time``) from shutter open to close.
+        Without the motion feature nothing moves, the camera neither: the two projections are the
+        same and the motion 0, exactly (and the kernel compiles without them)."""
+        if wp.static(not F.motion):
+            return wp.vec2(0.0)
+        t0 = cam.t_open
+        t1 = cam.t_close
+        p0 = h.p
+        p1 = h.p
+        if h.kind == KIND_SPHERE:
+            c = sphere_center(scene, h.index, time)
+            p0 = h.p + sphere_center(scene, h.index, t0) - c
+            p1 = h.p + sphere_center(scene, h.index, t1) - c
+        if wp.static(F.meshes):
+            if h.kind == KIND_MESH:
                 p_obj = to_object(instance_pose(scene, h.index, time), h.p)
                 p0 = to_world(instance_pose(scene, h.index, t0), p_obj)
                 p1 = to_world(instance_pose(scene, h.index, t1), p_obj)
-            elif h.kind >= KIND_BOX:
+        if wp.static(F.solids):
+            if h.kind >= KIND_BOX:
                 rec = solid_rec(scene, h.kind, h.index)
                 p_obj = to_object(solid_pose(rec, time), h.p)
                 p0 = to_world(solid_pose(rec, t0), p_obj)
                 p1 = to_world(solid_pose(rec, t1), p_obj)
-            mot += project(cam, p1, t1) - project(cam, p0, t0)
-            # id votes
-            oid = idmap.ids[idmap.base[h.kind] + h.index]
-            mid = int(-1)
-            if h.mat < idmap.n_mats:
-                mid = h.mat
-            for k in range(4):
-                if ids[k] == oid:
-                    votes[k] = votes[k] + 1
-                    break
-                if ids[k] == -1:
-                    ids[k] = oid
-                    mats[k] = mid
-                    votes[k] = 1
-                    break
-        out.coverage[slot] = float(hits) / float(wp.max(n, 1))
-        if hits == 0:
-            out.depth[slot] = wp.inf
-            out.z[slot] = wp.inf
-            out.normal[slot] = wp.vec3(0.0)
-            out.albedo[slot] = wp.vec3(0.0)
-            out.position[slot] = wp.vec3(0.0)
-            out.motion[slot] = wp.vec2(0.0)
-            out.object_id[slot] = -1
-            out.material[slot] = -1
-            return
-        inv = 1.0 / float(hits)
-        out.depth[slot] = depth * inv
-        out.z[slot] = zc * inv
-        if wp.length(nsum) > 0.0:
-            out.normal[slot] = wp.normalize(nsum)
-        else:
-            out.normal[slot] = wp.vec3(0.0)
-        out.albedo[slot] = alb * inv
-        out.position[slot] = pos * inv
-        out.motion[slot] = mot * inv
-        best = int(0)
-        for k in range(1, 4):
-            if votes[k] > votes[best]:  # strictly more: ties go to the id seen first
-                best = k
-        out.object_id[slot] = ids[best]
-        out.material[slot] = mats[best]
+        return project(cam, p1, t1) - project(cam, p0, t0)
 
-    return aov_pixel
+    @wp.func
+    def aov_sample(scene: SceneData, cam: CameraData, aov: AovData, mask: int, pixel: int, s: int, s1: int,
+                   final: bool, h: Hit, d: wp.vec3, time: float):
+        """Camera sample s of film entry ``pixel`` (along unit direction d at ``time``; first hit
+        h, or a miss): added to the pixel's sums, which sample 0 starts; where the pass is the
+        render's last (``final``) and the sample its last one (s1 - 1), the AOVs themselves
+        are written instead (the rules of the module docstring). The render kernel calls it for
+        each camera sample in sample order, so the sums are the same whatever the passes."""
+        hit = h.kind != KIND_NONE
+        last = final and s + 1 >= s1
+        hits = int(0)
+        if s > 0:
+            hits = aov.hits[pixel]
+        if hit:
+            hits = hits + 1
+        inv = float(0.0)
+        if last:
+            inv = aov_inverse(hits)
+            if (mask & AOV_COVERAGE) != 0:
+                aov.out.coverage[pixel] = aov_fraction(hits, s + 1)
+        else:
+            aov.hits[pixel] = hits
+        if (mask & AOV_DEPTH) != 0:
+            depth = float(0.0)
+            if s > 0:
+                depth = aov.out.depth[pixel]
+            if hit:
+                depth = depth + h.t
+            if last:
+                depth = aov_mean(depth, inv, hits)
+            aov.out.depth[pixel] = depth
+        if (mask & AOV_Z) != 0:
+            zc = float(0.0)
+            if s > 0:
+                zc = aov.out.z[pixel]
+            if hit:
+                zc = zc + h.t * -wp.dot(d, camera_frame_w(cam, time))
+            if last:
+                zc = aov_mean(zc, inv, hits)
+            aov.out.z[pixel] = zc
+        if (mask & AOV_NORMAL) != 0:
+            nsum = wp.vec3(0.0)
+            if s > 0:
+                nsum = aov.out.normal[pixel]
+            if hit:
+                nrm = h.ns
+                if wp.dot(nrm, d) > 0.0:
+                    nrm = -nrm  # turned towards the camera
+                nsum = nsum + nrm
+            if last:
+                nsum = aov_normal(nsum, hits)
+            aov.out.normal[pixel] = nsum
+        if (mask & AOV_ALBEDO) != 0:
+            alb = wp.vec3(0.0)
+            if s > 0:
+                alb = aov.out.albedo[pixel]
+            if hit:
+                m = scene.mats[h.mat]
+                if wp.max(m.emit) > 0.0:
+                    alb = alb + m.emit
+                else:
+                    alb = alb + m.kd
+            if last:
+                alb = alb * inv
+            aov.out.albedo[pixel] = alb
+        if (mask & AOV_POSITION) != 0:
+            pos = wp.vec3(0.0)
+            if s > 0:
+                pos = aov.out.position[pixel]
+            if hit:
+                pos = pos + h.p
+            if last:
+                pos = pos * inv
+            aov.out.position[pixel] = pos
+        if (mask & AOV_MOTION) != 0:
+            mot = wp.vec2(0.0)
+            if s > 0:
+                mot = aov.out.motion[pixel]
+            if hit:
+                mot = mot + point_motion(scene, cam, h, time)
+            if last:
+                mot = mot * inv
+            aov.out.motion[pixel] = mot
+        if (mask & AOV_IDS) != 0:
+            ids = wp.vec4i(-1, -1, -1, -1)
+            mats = wp.vec4i(-1, -1, -1, -1)
+            votes = wp.vec4i(0, 0, 0, 0)
+            if s > 0:
+                ids = aov.ids[pixel]
+                votes = aov.votes[pixel]
+                if (mask & AOV_MATERIAL) != 0:
+                    mats = aov.mats[pixel]
+            if hit:
+                oid = aov.idmap.ids[aov.idmap.base[h.kind] + h.index]
+                mid = int(-1)
+                if h.mat < aov.idmap.n_mats:
+                    mid = h.mat
+                # the id's slot, or the first free one (a fifth distinct id is not counted);
+                # slot by slot with constant indices, so the slots stay in registers
+                if ids[0] == oid:
+                    votes[0] = votes[0] + 1
+                elif ids[0] == -1:
+                    ids[0] = oid
+                    mats[0] = mid
+                    votes[0] = 1
+                elif ids[1] == oid:
+                    votes[1] = votes[1] + 1
+                elif ids[1] == -1:
+                    ids[1] = oid
+                    mats[1] = mid
+                    votes[1] = 1
+                elif ids[2] == oid:
+                    votes[2] = votes[2] + 1
+                elif ids[2] == -1:
+                    ids[2] = oid
+                    mats[2] = mid
+                    votes[2] = 1
+                elif ids[3] == oid:
+                    votes[3] = votes[3] + 1
+                elif ids[3] == -1:
+                    ids[3] = oid
+                    mats[3] = mid
+                    votes[3] = 1
+            if last:
+                aov_ids(aov, mask, pixel, ids, mats, votes)
+            else:
+                aov.ids[pixel] = ids
+                aov.votes[pixel] = votes
+                if (mask & AOV_MATERIAL) != 0:
+                    aov.mats[pixel] = mats
+
+    return aov_sample
 
 
 @build_once
 def _aov_kernel():
-    aov_pixel = aov_functions()
+    """The kernel that finishes the AOVs a render's last pass did not write (``AovTarget.finish``):
+    the same rules as ``aov_sample``'s last sample, from the sums of the pixel's n samples."""
 
     @wp.kernel(module="warprt_aov", enable_backward=False)
-    def aov_kernel(scene: SceneData, cam: CameraData, params: RenderParams, film: FilmData, n: int, idmap: IdMap,
-                   out: AovBuffers, first: int):
-        pixel = first + wp.tid()
-        aov_pixel(scene, cam, params, pixel % cam.width, pixel / cam.width, pixel, wp.min(n, film.limit[pixel]),
-                  idmap, out, pixel)
+    def aov_finish(aov: AovData, mask: int, film: FilmData, done: int):
+        pixel = wp.tid()
+        n = wp.min(done, film.limit[pixel])
+        hits = int(0)
+        if n > 0:
+            hits = aov.hits[pixel]
+        inv = aov_inverse(hits)
+        if (mask & AOV_COVERAGE) != 0:
+            aov.out.coverage[pixel] = aov_fraction(hits, n)
+        # (a pixel without samples: sums of zero, and so the miss values)
+        if (mask & AOV_DEPTH) != 0:
+            aov.out.depth[pixel] = aov_mean(wp.where(n > 0, aov.out.depth[pixel], 0.0), inv, hits)
+        if (mask & AOV_Z) != 0:
+            aov.out.z[pixel] = aov_mean(wp.where(n > 0, aov.out.z[pixel], 0.0), inv, hits)
+        if (mask & AOV_NORMAL) != 0:
+            aov.out.normal[pixel] = aov_normal(wp.where(n > 0, aov.out.normal[pixel], wp.vec3(0.0)), hits)
+        if (mask & AOV_ALBEDO) != 0:
+            aov.out.albedo[pixel] = wp.where(n > 0, aov.out.albedo[pixel], wp.vec3(0.0)) * inv
+        if (mask & AOV_POSITION) != 0:
+            aov.out.position[pixel] = wp.where(n > 0, aov.out.position[pixel], wp.vec3(0.0)) * inv
+        if (mask & AOV_MOTION) != 0:
+            aov.out.motion[pixel] = wp.where(n > 0, aov.out.motion[pixel], wp.vec2(0.0)) * inv
+        if (mask & AOV_IDS) != 0:
+            ids = wp.vec4i(-1, -1, -1, -1)
+            mats = wp.vec4i(-1, -1, -1, -1)
+            votes = wp.vec4i(0, 0, 0, 0)
+            if n > 0:
+                ids = aov.ids[pixel]
+                votes = aov.votes[pixel]
+                if (mask & AOV_MATERIAL) != 0:
+                    mats = aov.mats[pixel]
+            aov_ids(aov, mask, pixel, ids, mats, votes)
 
-    return aov_kernel
+    return aov_finish
 
 
 def id_map(built: DeviceScene) -> IdMap:
@@ -268,11 +454,70 @@ def check_aov_names(names) -> list[str]:
     return names
 
 
-def aov_buffers(n: int, device) -> AovBuffers:
+def _buffers(names, count: int, device) -> AovBuffers:
+    """The named AOVs' buffers of ``count`` entries (unset), a one-element one for each other."""
     bufs = AovBuffers()
     for name, spec in AOVS.items():
-        setattr(bufs, name, wp.zeros(n, dtype=spec.dtype, device=device))
+        setattr(bufs, name, wp.empty(count if name in names else 1, dtype=spec.dtype, device=device))
     return bufs
+
+
+_NO_AOVS: dict = {}  # no_aovs' record per device
+
+
+def no_aovs(device) -> AovData:
+    """The ``AovData`` of renders without AOVs (``RenderParams.aovs`` 0: the kernel never reads it),
+    one per device."""
+    data = _NO_AOVS.get(str(device))
+    if data is not None:
+        return data
+    data = AovData()
+    data.out = _buffers((), 1, device)
+    data.hits = wp.empty(1, dtype=int, device=device)
+    data.ids, data.mats, data.votes = (wp.empty(1, dtype=wp.vec4i, device=device) for _ in range(3))
+    m = IdMap()
+    m.base = wp.zeros(1, dtype=int, device=device)
+    m.ids = wp.zeros(1, dtype=int, device=device)
+    m.n_mats = 0
+    data.idmap = m
+    data.end = NO_LIMIT
+    return _NO_AOVS.setdefault(str(device), data)
+
+
+class AovTarget:
+    """The AOV buffers of one render (or batch) of ``count`` pixels: ``data`` for the render
+    kernel, ``mask`` for ``RenderParams.aovs``. ``end``: the render's planned samples per pixel
+    (the pass that reaches them writes the AOVs); ``NO_LIMIT`` where no pass can tell that it
+    is the last (adaptive sampling's counts come after its pilot), and ``finish`` writes them."""
+
+    def __init__(self, built: DeviceScene, names, count: int, end: int):
+        self.names = check_aov_names(names)
+        self.mask = aov_mask(self.names)
+        self.count = count
+        self.built = built
+        self.device = dev = built.device
+        data = AovData()
+        data.out = _buffers(self.names, count, dev)
+        # (sums that wait for the next sample or pass; unset memory costs nothing until a render
+        # needs it: a one-sample render writes the AOVs at once)
+        data.hits = wp.empty(count, dtype=int, device=dev)
+        ids = count if self.mask & AOV_IDS else 1
+        data.ids, data.votes = (wp.empty(ids, dtype=wp.vec4i, device=dev) for _ in range(2))
+        data.mats = wp.empty(count if self.mask & AOV_MATERIAL else 1, dtype=wp.vec4i, device=dev)
+        data.idmap = id_map(built)
+        data.end = int(end)
+        self.data = data
+        _aov_kernel()  # (defined with the first AOVs, so that the module's content never changes)
+
+    def finish(self, film: FilmData, done: int) -> None:
+        """Write the AOVs of a render that ran ``done`` samples per pixel (each pixel at most its
+        film limit) where its last pass did not (``done`` short of ``end``)."""
+        if done < self.data.end:
+            wp.launch(_aov_kernel(), dim=self.count, device=self.device, inputs=[self.data, self.mask, film, int(done)])
+
+    def maps(self, shape: tuple, as_warp: bool) -> dict:
+        """The requested AOVs shaped ``shape`` (+ channels) (see ``shaped``)."""
+        return shaped(self.data.out, self.names, shape, as_warp)
 
 
 def shaped(bufs: AovBuffers, names, shape: tuple, as_warp: bool) -> dict:
@@ -280,52 +525,11 @@ def shaped(bufs: AovBuffers, names, shape: tuple, as_warp: bool) -> dict:
     ``as_warp``, else numpy copies."""
     out = {}
     for name in names:
-        buf = getattr(bufs, name).reshape(shape)
-        out[name] = buf if as_warp else np.array(buf.numpy(), dtype=AOVS[name].out, copy=True)
+        buf = getattr(bufs, name)
+        if as_warp:
+            out[name] = buf.reshape(shape)
+        else:  # (reshaped in numpy: a Warp reshape costs more than the copy of a small image)
+            out[name] = np.array(buf.numpy(), dtype=AOVS[name].out, copy=True).reshape(
+                shape + ((AOVS[name].channels,) if AOVS[name].channels > 1 else ()))
     return out
 
-
-AOV_PIECES_PER_WORKER = 8  # bands of rows the CPU's AOV pixels are cut into, per worker (compute_aovs)
-
-
-def compute_aovs(built: DeviceScene, names, params: RenderParams, film: FilmData, n: int,
-                 as_warp: bool = False, pool=None, workers: int = 1) -> dict:
-    """The requested AOVs of a render, from samples [0, n) of each pixel (at most its film
-    limit) with the render's ``params``: numpy arrays, or ``wp.array``s with ``as_warp``. On the
-    CPU with a thread ``pool`` and several ``workers`` (a CPU launch runs on one thread), the
-    workers take bands of rows in turn, AOV_PIECES_PER_WORKER of them per worker; a pixel's AOVs
-    are its own, whatever the split."""
-    names = check_aov_names(names)
-    cam = built.scene.camera
-    count, dev = cam.width * cam.height, built.device
-    bufs = aov_buffers(count, dev)
-    inputs = [built.data, built.camera, params, film, int(n), id_map(built), bufs]
-    if pool is None or workers <= 1 or not dev.is_cpu:
-        wp.launch(_aov_kernel(), dim=count, device=dev, inputs=[*inputs, 0])
-    else:
-        # recorded here (the module is loaded from this thread), launched by the workers
-        step = -(-cam.height // (AOV_PIECES_PER_WORKER * workers)) * cam.width
-        pieces = iter([wp.launch(_aov_kernel(), dim=min(step, count - first), device=dev, inputs=[*inputs, first],
-                                 record_cmd=True) for first in range(0, count, step)])
-        lock = threading.Lock()
-
-        def work():
-            while True:
-                with lock:
-                    cmd = next(pieces, None)
-                if cmd is None:
-                    return
-                cmd.launch()
-
-        # (a Ctrl-C waits for the bands under way, as a render's pass does: render.run_pass)
-        held = False
-        for f in [pool.submit(work) for _ in range(workers)]:
-            while True:
-                try:
-                    f.result()
-                    break
-                except KeyboardInterrupt:
-                    held = True
-        if held:
-            raise KeyboardInterrupt
-    return shaped(bufs, names, (cam.height, cam.width), as_warp)

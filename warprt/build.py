@@ -488,4 +488,5 @@ def render_params(scene: Scene, spp: int, seed: int, features: Features | None =
     p.clamp = s.clamp
     p.moving = int(features.motion) if features is not None else 1
     p.light_sampling = LIGHT_SAMPLING.index(s.light_sampling)
+    p.aovs = 0  # (set by a render that asks for AOVs)
     return p

@@ -15,7 +15,10 @@ pixel has fewer samples left):
    mirror / glossy reflection and the refraction (or, under total internal reflection, the
    extra reflection) with their weights, unless the depth limit or the throughput cutoff stops
    them;
-4. the sample, sanitised, goes into the pixel's ``film`` sums.
+4. the sample, sanitised, goes into the pixel's ``film`` sums; where the render asks for AOVs
+   (``RenderParams.aovs``, a run-time mask), the camera ray's first hit goes into the pixel's
+   AOV sums (``aov.make_aov_add``), sample by sample like the film's, and the pass that ends the
+   render writes the AOVs (``aov.aov_store``).
 
 A push onto a full stack drops that ray and counts it (``overflow`` per pixel), so overflow is
 defined behaviour. With at most two children per hit, depth d needs at most d + 1 entries; the
@@ -33,6 +36,7 @@ import warp as wp
 
 from . import _warp, kernels
 from ._warp import build_once
+from .aov import AovData, make_aov_sample
 from .camera import camera_frame, camera_packet, camera_ray, lens_packet
 from .film import FilmData, claim_block, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
@@ -128,6 +132,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
     finish_hit = trace.finish_hit
     mesh_packet = trace.mesh_packet
     finish_packet_lane = trace.finish_packet_lane
+    aov_sample = make_aov_sample(F)
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
     area_lights_packet = lights.area_lights_packet
@@ -173,7 +178,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
 
     @wp.func(inline=True)
     def render_pixels(scene: SceneData, cam: CameraData, params: RenderParams, px0: int, py: int, pixel0: int,
-                      n_pix: int, s0: int, s1: int, film: FilmData, sh: int):
+                      n_pix: int, s0: int, s1: int, film: FilmData, sh: int, aov: AovData):
         """Samples [s0, s1) of the ``n_pix`` raster pixels of ``cam`` that fill 2^sh rows from
         (px0, py) column by column: pixel j is (px0 + (j >> sh), py + (j & (2^sh - 1))), added to
         film entry pixel0 + (j & (2^sh - 1)) · width + (j >> sh) (also the pixel's noise key: unique
@@ -182,7 +187,9 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         packet takes PACKET samples in that order, from the next pixels too when a pixel has fewer
         left (an adaptive render's pilot and later passes, low spp), so that packets stay full: a
         column's pixels lie together, so a packet over several pixels covers a patch of the image
-        (2 × 4 pixels at one sample a pixel in 4 rows) rather than a strip of a row."""
+        (2 × 4 pixels at one sample a pixel in 4 rows) rather than a strip of a row. With AOVs
+        (``params.aovs``), each camera sample's first hit goes into the pixel's AOV sums in the
+        same order, held and stored with the film's sums."""
         rm = (1 << sh) - 1
         # the pixel whose sums are held (-1: none yet); the first pass starts the sums (the film
         # needs no zeroing), later passes add to them; a pixel without samples in a later pass
@@ -194,6 +201,11 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         acc_sq = float(0.0)
         rays = int(0)
         dropped = int(0)
+        # the AOVs asked for (0: none): each camera sample goes into its pixel's AOV sums (in
+        # sample order, as into the film), and the pass that reaches the render's planned samples
+        # writes the AOVs themselves (aov.make_aov_sample)
+        aovs = params.aovs
+        a_final = s1 >= aov.end
         if wp.static(F.secondary):
             stack = wp.zeros(shape=STACK_SIZE, dtype=RayEntry)
         # the camera rays of PACKET_MIN to PACKET samples go together, through the analytic BVH and
@@ -415,6 +427,14 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                             h = finish_hit(scene, o, d, params.t_min, lane(pk.time, k), lane(pk.best, k),
                                            lane_i(pk.kind, k), lane_i(pk.index, k))
                         l_rays[k] = 1
+                        if aovs != 0:
+                            jj = p_j
+                            sj = one_s + k
+                            if mixed:
+                                jj = lane_j[k]
+                                sj = lane_s[k]
+                            aov_sample(scene, cam, aov, aovs, pixel0 + (jj & rm) * cam.width + (jj >> sh), sj, s1, a_final,
+                                       h, d, lane(pk.time, k))
                         L = wp.vec3(0.0, 0.0, 0.0)
                         if h.kind == KIND_NONE:
                             L += mul_sat(wp.vec3(1.0, 1.0, 1.0), scene.background)
@@ -584,6 +604,8 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
                         else:
                             h = closest_hit(scene, e.o, e.d, t_lo, t_hi, time)
+                        if aovs != 0 and e.depth == 0:  # the camera ray's first hit
+                            aov_sample(scene, cam, aov, aovs, pixel, s, s1, a_final, h, e.d, time)
                         if h.kind == KIND_NONE:
                             L += mul_sat(e.w, scene.background)
                             continue
@@ -687,15 +709,9 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             film.rays[pixel] = rays
             film.overflow[pixel] = dropped
 
-    @wp.func(inline=True)
-    def render_pixel(scene: SceneData, cam: CameraData, params: RenderParams, px: int, py: int, pixel: int,
-                     s0: int, s1: int, film: FilmData):
-        """Samples [s0, s1) of raster pixel (px, py) of ``cam``, added to film entry ``pixel``."""
-        render_pixels(scene, cam, params, px, py, pixel, 1, s0, s1, film, 0)
-
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def render_kernel(scene: SceneData, cam: CameraData, params: RenderParams,
-                      row0: int, stride: int, s0: int, s1: int, film: FilmData, run: int, block: int):
+                      row0: int, stride: int, s0: int, s1: int, film: FilmData, run: int, block: int, aov: AovData):
         # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
         # ... (an interleaved slice of the frame, render._slices), ``run`` consecutive pixels of
         # one row per thread (``run`` divides the width: a CPU task takes a whole row, so the
@@ -736,10 +752,11 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                 calls = calls >> sh
                 n_pix = cam.width << sh
             for r in range(calls):
-                render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, n_pix, s0, s1, film, sh)
+                render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, n_pix, s0, s1, film, sh,
+                              aov)
         else:
             for r in range(calls):
-                render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, run, s0, s1, film, 0)
+                render_pixels(scene, cam, params, px0, py + r, (py + r) * cam.width + px0, run, s0, s1, film, 0, aov)
 
     kernels.label(render_kernel, f"the render kernel for {F.key}" + ("" if packets else " (rays one by one)"))
-    return SimpleNamespace(render=render_kernel, pixel=render_pixel, trace=trace)
+    return SimpleNamespace(render=render_kernel, pixels=render_pixels, trace=trace)

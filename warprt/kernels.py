@@ -51,7 +51,6 @@ _LABELS = {
     "warprt_newton": "the Newton bridge's kernels",
     "warprt_query": "the ray-query kernels",
     "warprt_worlds": "the batch posing kernels",
-    "warprt_worlds_aov": "the batch AOV kernel",
 }
 _quiet = contextvars.ContextVar("warprt_quiet_compiles", default=False)
 _where = contextvars.ContextVar("warprt_compile_where", default="")  # " in the background"

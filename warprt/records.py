@@ -296,6 +296,7 @@ class RenderParams:
     clamp: float
     moving: int  # 1 when something in the scene moves: sample time (runtime guard for general kernels)
     light_sampling: int  # LIGHT_SAMPLING id: 1 draws rectangle-light directions in proportion to n·ω
+    aovs: int  # the AOVs the render asks for (aov.AOV_BITS; 0: none): its first hits go into aov.AovData
 
 
 def table(struct, rows: list[dict], device) -> "wp.array":

@@ -37,11 +37,11 @@ import numpy as np
 import warp as wp
 
 from . import _warp, kernels, splitting
-from .aov import check_aov_names, compute_aovs
+from .aov import AovTarget, check_aov_names, no_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
 from .errors import RenderError
-from .film import Film, adaptive_counts
+from .film import NO_LIMIT, Film, adaptive_counts
 from .integrator import kernels_for, packets_for
 from .trace import PACKET
 from .memory import check_memory
@@ -124,6 +124,7 @@ def default_workers() -> int:
 
 S0_ARG = 5  # position of s0 (then s1) among the render kernel's arguments
 PARAMS_ARG = 2  # position of the render's parameters (RenderParams)
+AOV_ARG = 10  # position of the render's AOV buffers (aov.AovData)
 ADAPTIVE_MIN_SPP = 2  # below this budget adaptive sampling renders uniformly (1 spp: nothing to share)
 ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every pixel
 # interleaved sets of rows per worker where a pass is cut into fixed slices: the light-splitting
@@ -289,6 +290,7 @@ class Renderer:
         self._film: Film | None = None  # kept between renders (_film_for)
         self._film_lock = threading.Lock()
         self._launches = None  # (what they were recorded for, the slices' recorded launches): _passes
+        self._aovs = None  # the AOV buffers kept with the film for the next render (_aovs_for)
 
     def update(self, scene: Scene) -> None:
         """Switch to a changed scene (moved objects, new materials, lights or camera...) without
@@ -355,7 +357,8 @@ class Renderer:
                 pilots.append((film, [wp.launch(kernel, dim=cam.width * len(rows[j::count]) // run,
                                                 device=self.device, record_cmd=True,
                                                 inputs=[self.built.data, self.built.camera, params, rows[j],
-                                                        step * count, 0, 0, film.data, run, 1])
+                                                        step * count, 0, 0, film.data, run, 1,
+                                                        no_aovs(self.device)])
                                       for j in range(count)]))
             self.built.set_light_map(None)  # (the pilot's counts are the rows')
             errors, tiles = [], []
@@ -452,6 +455,22 @@ class Renderer:
         self._pool.close()
         self._film = None
         self._launches = None
+        self._aovs = None
+
+    def _aovs_for(self, names: list, count: int, end: int, keep: bool) -> AovTarget | None:
+        """The AOV buffers of a render (None without AOVs). With ``keep`` (the render holds the
+        renderer's film and copies the AOVs out), those of the last such render are reused when
+        they fit: their allocation and the scene's id map cost a tenth of a small one-sample
+        render; AOVs handed out as ``wp.array``s get buffers of their own."""
+        if not names:
+            return None
+        target = self._aovs if keep else None
+        if target is None or target.names != names or target.count != count or target.built is not self.built:
+            target = AovTarget(self.built, names, count, end)
+            if keep:
+                self._aovs = target
+        target.data.end = int(end)
+        return target
 
     def _film_for(self, width: int, height: int) -> tuple[Film, bool]:
         """(film, held): the film a render accumulates into. The renderer keeps one between
@@ -548,7 +567,12 @@ class Renderer:
             self.built.rendering()  # (a view rendered often enough gets its bins)
             # (None: the CPU workers claim blocks of rows; see the module docstring)
             n_slices = (None if slices is None else int(slices)) if dev.is_cpu else 1
-            run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop)
+            # the AOVs, from the passes' own samples (warprt.aov): the pass that completes the planned
+            # samples writes them, unless adaptive sampling decides the counts after its pilot
+            counted = adaptive and spp >= ADAPTIVE_MIN_SPP
+            target = self._aovs_for(aovs, width * height, NO_LIMIT if counted else int(spp), held and not as_warp)
+            run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop,
+                       aov=no_aovs(dev) if target is None else target.data)
 
             show = (sys.stderr.isatty() if progress is None else progress)
             bar = None
@@ -564,10 +588,12 @@ class Renderer:
                     interrupted = False
                     pattern = int(spp if planned_spp is None else planned_spp)
                     params = render_params(self.scene, pattern, int(seed), self.built.features)
+                    if target is not None:
+                        params.aovs = target.mask
                     done, rel_err = 0, None
                     passes: list[int] = []
                     run["passes"] = passes
-                    if adaptive and spp >= ADAPTIVE_MIN_SPP:
+                    if counted:
                         # the pilot: the first n0 samples of every pixel, which then decide the other
                         # pixels' counts (never their own, see film.adaptive_counts) and stay in the image
                         n0 = max(1, int(spp) // ADAPTIVE_PILOT_FRACTION)  # 2 spp: one sample, then counts
@@ -589,9 +615,10 @@ class Renderer:
             if target_error is not None and rel_err is None and done >= 2:
                 rel_err = film.relative_error(done)
             image = film.device_image(done) if as_warp else film.image(done)
-            # the AOVs of the samples the image holds (the same camera rays, regenerated)
-            aov_maps = compute_aovs(self.built, aovs, params, film.data, done, as_warp, self._pool.get(int(workers)),
-                                    int(workers)) if aovs else {}
+            aov_maps = {}
+            if target is not None:  # the AOVs of the samples the image holds
+                target.finish(film.data, done)
+                aov_maps = target.maps((height, width), as_warp)
             # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
             spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
             stopped_by = None
@@ -612,11 +639,12 @@ class Renderer:
             if held:
                 self._film_lock.release()
 
-    def _launches_for(self, film: Film, params, n_slices: int | None, workers: int, run: int, claims: bool) -> list:
+    def _launches_for(self, film: Film, params, aov, n_slices: int | None, workers: int, run: int,
+                      claims: bool) -> list:
         """One recorded launch of the running kernel per worker (or slice), replayed every pass
         with the pass's sample range; kept for the next call while kernel, scene (its record is
         made once, with it), camera and film are the same objects and slices and workers the same
-        numbers, with only the render's parameters set again (recording packs every argument, the
+        numbers, with only the render's parameters and AOV buffers set again (recording packs every argument, the
         scene's record among them: about 0.3 ms for 8 launches)."""
         cam = self.scene.camera
         dev = self.device
@@ -627,6 +655,7 @@ class Renderer:
             launches = kept[1]
             for cmd in launches:
                 cmd.set_param_at_index(PARAMS_ARG, params)
+                cmd.set_param_at_index(AOV_ARG, aov)
             return launches
         if claims:
             # one launch per worker, each claiming blocks of rows until none is left (stride 0):
@@ -634,7 +663,7 @@ class Renderer:
             n_blocks = -(-cam.height // SLICE_BLOCK)
             launches = [wp.launch(kernel, dim=n_blocks, device=dev, record_cmd=True,
                                   inputs=[self.built.data, self.built.camera, params, 0, 0, 0, 0, film.data,
-                                          cam.width, SLICE_BLOCK])
+                                          cam.width, SLICE_BLOCK, aov])
                         for _ in range(workers)]
         else:
             # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
@@ -643,7 +672,7 @@ class Renderer:
             launches = [wp.launch(kernel, dim=-(-count // (cam.width * block)) if blocks else count // run,
                                   device=dev, record_cmd=True,
                                   inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
-                                          film.data, run, block])
+                                          film.data, run, block, aov])
                         for first, stride, block, count in _slices(
                             cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices)]
         if film is self._film:  # (a film of a render in another thread is not kept)
@@ -651,20 +680,20 @@ class Renderer:
         return launches
 
     def _passes(self, film: Film, params, start: int, spp: int, ctrl_c: "_CtrlC", bar, time_budget, target_error,
-                *, workers: int, n_slices: int | None, pass_spp, stop,
+                *, workers: int, n_slices: int | None, pass_spp, stop, aov,
                 passes: list | None = None) -> tuple[int, bool, float | None]:
         """Run passes of samples [start, spp) into ``film``, which holds samples [0, start) (stopping
         early for Ctrl-C, ``stop``, ``time_budget`` or ``target_error``): (samples run, interrupted,
         relative error or None). The renderer's first pass is one sample (to time one); every
         later pass takes about half a second, sized from the time per sample last measured with
         these workers and slices and, with per-pixel counts, from how many pixels still sample at
-        each index."""
+        each index. ``aov``: the render's ``aov.AovData``."""
         dev = self.device
         run = pixels_per_thread(dev, self.scene.camera.width)
         # by default (n_slices None: the CPU) each worker's launch claims blocks of rows; threads
         # of fewer pixels than a row (tests that render pixel by pixel) take fixed slices instead
         claims = n_slices is None and run >= self.scene.camera.width
-        launches = self._launches_for(film, params, n_slices, workers, run, claims)
+        launches = self._launches_for(film, params, aov, n_slices, workers, run, claims)
         pool = self._pool.get(workers)
 
         # the work of sample indices [0, s) in samples of every pixel: s itself, unless the film has

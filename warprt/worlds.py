@@ -49,7 +49,7 @@ from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .checks import EXTENT_LIMIT, check_batch, describe_transform
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
-from .aov import AOVS, AovBuffers, IdMap, aov_buffers, aov_functions, check_aov_names, id_map, shaped
+from .aov import AOVS, AovData, AovTarget, check_aov_names, no_aovs
 from .integrator import kernels_for, packets_for
 from .memory import check_memory
 from .records import (
@@ -64,6 +64,7 @@ from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
 
+PARAMS_ARG, BLOCK_ARG, AOV_ARG = 2, 15, 16  # positions of these among the batch kernel's arguments
 BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
 
 
@@ -247,22 +248,25 @@ def _pose_kernels():
 
 @build_once
 def batch_kernel_for(F: Features, packets: bool):
-    """The batched render kernel for a feature set: the single-image kernel's per-pixel function
-    on each world's tables (one Warp module per feature set and packet choice, compiled on first
-    use; ``packets``: :func:`warprt.integrator.packets_for` the device)."""
-    render_pixel = kernels_for(F, packets).pixel
+    """The batched render kernel for a feature set: the single-image kernel's function for a run
+    of pixels of one row, on each world's tables (one Warp module per feature set and packet
+    choice, compiled on first use; ``packets``: :func:`warprt.integrator.packets_for` the device)."""
+    render_pixels = kernels_for(F, packets).pixels
 
     @wp.kernel(module="unique", enable_backward=False, module_options=_warp.MODULE_OPTIONS)
     def batch_render(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams,
                      row0: int, stride: int, s0: int, s1: int, film: FilmData, tables: WorldTables,
                      n_cams: int, height: int, width: int, run: int, inv_spp: float, color: wp.array(dtype=wp.vec3),
-                     block: int):
+                     block: int, aov: AovData):
         # this launch's pixels: blocks of ``block`` consecutive rows from rows row0, row0 + stride,
         # ... of the tall image (W·C·H rows; render._slices), ``run`` consecutive pixels of one row
         # per thread (``run`` divides the width); or, with stride 0 (a CPU batch's default, run =
         # the width), each thread claims the next block of ``block`` rows from the film's counter
         # (film.claim_block) until none is left. A batch renders all its samples in one pass, so
-        # each pixel's colour is written here too
+        # each pixel's colour is written here too, and its AOVs where the render asks for them.
+        # The thread's pixels of a row go to render_pixels together (as in a single image): with
+        # few samples a camera packet takes several pixels, and what render_pixels sets up is set
+        # up once a row
         k0 = wp.tid() * run
         gy0 = int(0)
         px0 = int(0)
@@ -282,31 +286,13 @@ def batch_kernel_for(F: Features, packets: bool):
             sc = world_scene(scene, tables, image / n_cams)
             cam = cams[image]
             py = gy - image * height
+            g0 = gy * width + px0
+            render_pixels(sc, cam, params, px0, py, g0, run, s0, s1, film, 0, aov)
             for j in range(run):
-                px = px0 + j
-                g = gy * width + px
-                render_pixel(sc, cam, params, px, py, g, s0, s1, film)
-                color[g] = film.accum[g] * inv_spp
+                color[g0 + j] = film.accum[g0 + j] * inv_spp
 
     kernels.label(batch_render, f"the batch render kernel for {F.key}" + ("" if packets else " (rays one by one)"))
     return batch_render
-
-
-@build_once
-def _batch_aov_kernel():
-    """The AOVs of a batch: ``aov.aov_pixel`` on each world's tables (a module of its own)."""
-    aov_pixel = aov_functions()
-
-    @wp.kernel(module="warprt_worlds_aov", enable_backward=False)
-    def batch_aovs(scene: SceneData, cams: wp.array(dtype=CameraData), params: RenderParams, tables: WorldTables,
-                   n_cams: int, height: int, width: int, n: int, idmap: IdMap, out: AovBuffers):
-        g = wp.tid()
-        gy = g / width
-        image = gy / height
-        aov_pixel(world_scene(scene, tables, image / n_cams), cams[image], params, g - gy * width,
-                  gy - image * height, g, n, idmap, out, g)
-
-    return batch_aovs
 
 
 @dataclass
@@ -480,7 +466,7 @@ class BatchRenderer:
         self._background = None  # the own kernel compiling in the background (kernels.Background)
         self._background_compile = (kernels.background_default() if background_compile is None
                                     else bool(background_compile))
-        self._aov_bufs = None
+        self._aovs: AovTarget | None = None  # the last render's AOV buffers (kept while it asks for the same)
         self._pool = WorkerPool("warprt-batch")
 
     def _pick_kernel(self) -> None:
@@ -634,8 +620,20 @@ class BatchRenderer:
         params = render_params(self.scene, spp, int(seed), self.features)
         run = pixels_per_thread(dev, self.width)
         inputs = [self.scene_data, self._cams, params, 0, 1, 0, 0, self.film.data, self.tables, self.cameras,
-                  self.height, self.width, run, 1.0 / float(spp), self._color, 1]
+                  self.height, self.width, run, 1.0 / float(spp), self._color, 1, no_aovs(dev)]
         self._pick_kernel()
+        # the AOVs come from the render's own samples (warprt.aov): its one pass, which takes every
+        # sample, writes them
+        target = None
+        if aovs:
+            target = self._aovs
+            if target is None or target.names != aovs:
+                self._aovs = None  # (its buffers freed before the new ones are made)
+                target = self._aovs = AovTarget(self.built, aovs, self._color.shape[0], spp)
+            target.data.end = spp
+            params = render_params(self.scene, spp, int(seed), self.features)
+            params.aovs = target.mask
+            inputs[PARAMS_ARG], inputs[AOV_ARG] = params, target.data
         start = _time.perf_counter()
         self._update_tables()
         if self.bvh is not None:
@@ -645,7 +643,7 @@ class BatchRenderer:
         # blocks of rows, a thread per block in case one launch takes them all)
         if n_slices is None and run >= self.width:
             args = list(inputs)
-            args[4], args[-1] = 0, SLICE_BLOCK
+            args[4], args[BLOCK_ARG] = 0, SLICE_BLOCK
             launches = [wp.launch(self._kernel, dim=-(-rows // SLICE_BLOCK), device=dev, inputs=args, record_cmd=True)
                         for _ in range(workers)]
             self.film.reset_claims()
@@ -654,23 +652,11 @@ class BatchRenderer:
             for first, stride, block, count in _slices(self.width, rows,
                                                        SLICES_PER_WORKER * workers if n_slices is None else n_slices):
                 args = list(inputs)
-                args[3], args[4], args[-1] = first, stride, block
+                args[3], args[4], args[BLOCK_ARG] = first, stride, block
                 launches.append(wp.launch(self._kernel, dim=count // run, device=dev, inputs=args, record_cmd=True))
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
         shape = (self.worlds, self.cameras, self.height, self.width)
-        aov_maps = {}
-        if aovs:
-            if self._aov_bufs is None:
-                self._aov_bufs = aov_buffers(self._color.shape[0], dev)
-                self._idmap = id_map(self.built)
-                self._aov_loaded = False
-            aov_inputs = [self.scene_data, self._cams, params, self.tables, self.cameras, self.height, self.width, spp,
-                          self._idmap, self._aov_bufs]
-            if not self._aov_loaded:
-                self.counters["compiles"] += 1
-                self._aov_loaded = True
-            wp.launch(_batch_aov_kernel(), dim=self._color.shape[0], device=dev, inputs=aov_inputs)
-            aov_maps = shaped(self._aov_bufs, aovs, shape, as_warp=True)
+        aov_maps = {} if target is None else target.maps(shape, as_warp=True)
         wp.synchronize_device(dev)
         wall = _time.perf_counter() - start
         return BatchResult(color=self._color.reshape(shape), spp=spp, wall_time=wall, film=self.film, aovs=aov_maps)
