@@ -727,7 +727,7 @@ class Renderer:
                 size = 1  # the renderer's first pass: one sample, to time one
             size = min(size, spp - done)
             if self._switch_kernel():  # the scene's own kernel, compiled in the background: from this pass on
-                launches = self._launches_for(film, params, n_slices, workers, run, claims)
+                launches = self._launches_for(film, params, aov, n_slices, workers, run, claims)
             if self._running is not self.kernel:
                 self._general_passes += 1
             if claims:  # (each pass's launches claim the blocks from the first again)
