@@ -414,6 +414,9 @@ def register_whitted(mi) -> None:
         return
     import drjit as dr
 
+    # @dr.syntax recompiles the methods below against this module's globals (closures are lost)
+    globals().update(mi=mi, dr=dr)
+
     class WhittedIntegrator(mi.SamplingIntegrator):
         """warprt's recursion in Mitsuba: a vectorised loop over one path per camera sample.
 
@@ -434,6 +437,61 @@ def register_whitted(mi) -> None:
             self.min_weight = float(props.get("min_weight", 1e-4))
             self.emitter_samples = int(props.get("emitter_samples", 1))
             self.transparent_shadows = bool(props.get("transparent_shadows", False))
+            self.scalar = mi.variant().startswith("scalar")
+
+        def sample(self, scene, sampler, ray, medium=None, active=True):
+            if self.scalar:
+                return self.sample_scalar(scene, sampler, ray)
+            return self.sample_wide(scene, sampler, ray, active)
+
+        def transmittance_scalar(self, scene, si, target):
+            ray = si.spawn_ray_to(target)
+            T = mi.Spectrum(1.0)
+            while True:
+                hit = scene.ray_intersect(ray)
+                if not hit.is_valid():
+                    return T
+                b = hit.bsdf()
+                if not mi.has_flag(b.flags(), mi.BSDFFlags.DeltaTransmission):
+                    return mi.Spectrum(0.0)
+                T *= b.eval_attribute_3("specular_transmittance", hit)
+                if dr.max(T) <= 0:
+                    return T
+                ray = hit.spawn_ray_to(target)
+
+        def sample_scalar(self, scene, sampler, ray):
+            """The same, one sample at a time (the scalar variants: no loop recording, and no
+            pointer where there is no emitter or no surface)."""
+            ctx = mi.BSDFContext(mi.TransportMode.Importance)
+            L, beta, valid = mi.Spectrum(0.0), mi.Spectrum(1.0), False
+            for depth in range(self.max_depth + 1):
+                si = scene.ray_intersect(ray)
+                if not si.is_valid():
+                    break
+                valid = valid or depth == 0
+                emitter = si.emitter(scene)
+                if emitter is not None:
+                    L += beta * emitter.eval(si)
+                b = si.bsdf(ray)
+                if not mi.has_flag(b.flags(), mi.BSDFFlags.Delta):
+                    for _ in range(self.emitter_samples):
+                        ds, em_w = scene.sample_emitter_direction(si, sampler.next_2d(), False)
+                        if ds.pdf == 0:
+                            continue
+                        if self.transparent_shadows:
+                            vis = self.transmittance_scalar(scene, si, ds.p)
+                        else:
+                            vis = 0.0 if scene.ray_test(si.spawn_ray_to(ds.p)) else 1.0
+                        L += beta * b.eval(ctx, si, si.to_local(ds.d)) * em_w * vis / self.emitter_samples
+                    break
+                if depth == self.max_depth:
+                    break
+                bs, w = b.sample(ctx, si, sampler.next_1d(), sampler.next_2d())
+                beta *= w
+                if dr.max(beta) <= self.min_weight:
+                    break
+                ray = si.spawn_ray(si.to_world(bs.wo))
+            return L, valid, []
 
         @dr.syntax
         def transmittance(self, scene, si, target, active):
@@ -452,7 +510,7 @@ def register_whitted(mi) -> None:
             return T
 
         @dr.syntax
-        def sample(self, scene, sampler, ray, medium=None, active=True):
+        def sample_wide(self, scene, sampler, ray, active):
             ctx = mi.BSDFContext(mi.TransportMode.Importance)
             ray = mi.Ray3f(ray)
             L = mi.Spectrum(0.0)
