@@ -280,8 +280,7 @@ def study_scene(entry: Entry, mi, dr, args, log) -> dict:
 
     # 2. warprt's configurations; the same render under two names shares one curve
     effective = {c: effective_config(c, scene) for c in args.configs}
-    unique = list(dict.fromkeys(effective.values()))
-    t0 = time.perf_counter()
+    unique = ["sobol"] if args.check_only else list(dict.fromkeys(effective.values()))
     ws = WarprtSide(scene, unique)
     rec["setup"] = {"warprt_build_s": ws.build_s, "warprt_compile_s": ws.compile_s,
                     "warprt_light_samples": ws.light_samples, "warprt_light_maps": ws.light_maps,

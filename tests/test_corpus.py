@@ -281,3 +281,11 @@ def test_lights_and_whitted_recursion_agree_with_warprt(mi, tmp_path):
     err, noise, dmean, sigma = _noise_check(m, w)
     assert err < 2.5 * noise, (err, noise)
     assert dmean < 4 * sigma + 1e-3 * abs(float(np.mean(m[0]))), (dmean, sigma)
+
+
+def test_the_docs_list_the_corpus_as_it_is():
+    text = (corpus.ROOT / "docs" / "benchmarks.md").read_text()
+    for e in corpus.CORPUS:
+        split = "training" if e.split == corpus.TRAIN else "validation"
+        assert f"| {e.name} | {e.kind} | {split} |" in text, e.name
+    assert corpus.MARK_BEGIN in text and corpus.MARK_END in text
