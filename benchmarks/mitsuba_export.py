@@ -15,8 +15,9 @@ Used by the six-scene side by side (``benchmarks.peers``) and the corpus (``benc
   the refracted one kt·(1 − F), Mitsuba picks one of the two with probability F and weights it
   kt. Schlick or no Fresnel, Blinn-Phong, mixed diffuse and specular materials and glossy lobes
   have no Mitsuba BSDF with the same weights: they raise;
-* shapes: spheres, rectangles, disks and planes (a square of half side ``plane_half``: Mitsuba
-  has no infinite plane, ``plane_beyond_extent`` bounds what that changes) as Mitsuba's analytic
+* shapes: spheres, rectangles, disks and planes (a square of half side ``plane_half``, 100, or
+  1e4 under a directional light: Mitsuba has no infinite plane, ``plane_beyond_extent`` bounds
+  what that changes) as Mitsuba's analytic
   shapes; boxes as ``cube`` (a 12-triangle mesh, the same box); cylinders as Mitsuba's open
   ``cylinder`` and two ``disk`` caps; capsules as the cylinder and two ``sphere`` ends (the ends'
   inner halves lie inside the closed tube, where no ray reaches); meshes as flat-shaded ``ply``
@@ -56,6 +57,15 @@ import warprt
 
 ROOT = Path(__file__).resolve().parents[1]
 GROUND_HALF = 100.0  # half side of the square that stands in for an infinite plane
+# ... under a directional light, whose light does not fall off: the plane beyond 100 units lights
+# the pixels along the horizon. 1e4 renders the same as 100 within float round-off on the
+# corpus's grounds (1e5 does not: Mitsuba's float32 rectangle loses the contact shadows' detail)
+SUN_GROUND_HALF = 1e4
+
+
+def ground_half(scene) -> float:
+    """Half side of the square that stands in for a Plane in Mitsuba."""
+    return SUN_GROUND_HALF if any(isinstance(x, warprt.DirectionalLight) for x in scene.lights) else GROUND_HALF
 MESH_DIR = ROOT / ".cache" / "peers" / "meshes"
 
 
@@ -269,7 +279,7 @@ def has_specular(scene: warprt.Scene) -> bool:
 
 
 def to_mitsuba(scene: warprt.Scene, mi, *, sampler: str = "independent", spp: int = 1,
-               mesh_dir: Path | None = None, plane_half: float = GROUND_HALF, emitter_samples: int = 1,
+               mesh_dir: Path | None = None, plane_half: float | None = None, emitter_samples: int = 1,
                integrator: str | None = None, instancing: bool = True) -> dict:
     """A Mitsuba 3 scene dict with the same physics as ``scene`` (see the module docstring).
 
@@ -278,6 +288,7 @@ def to_mitsuba(scene: warprt.Scene, mi, *, sampler: str = "independent", spp: in
     meshes that share an asset and a material become one shapegroup and its instances (else
     each is its own ply shape)."""
     mesh_dir = Path(mesh_dir) if mesh_dir is not None else MESH_DIR
+    plane_half = ground_half(scene) if plane_half is None else plane_half
     if np.any(np.asarray(scene.ambient, dtype=float) != 0) or np.any(np.asarray(scene.background, dtype=float) != 0):
         raise ExportError("ambient and background must be 0 (Mitsuba's direct integrator has neither)")
     rs, default = scene.render, warprt.RenderSettings()
@@ -643,13 +654,14 @@ def _far_radiance_bound(scene: warprt.Scene, plane: warprt.Plane, half: float) -
     return kd / math.pi * e
 
 
-def plane_beyond_extent(scene: warprt.Scene, image: np.ndarray, half: float = GROUND_HALF, n: int = 4) -> dict:
+def plane_beyond_extent(scene: warprt.Scene, image: np.ndarray, half: float | None = None, n: int = 4) -> dict:
     """How much of ``image`` can come from a Plane farther than ``half`` from its point (outside
     the disk inscribed in Mitsuba's stand-in square): n x n camera rays per pixel (with lens
     samples) give each pixel's fraction f of such hits, ``_far_radiance_bound`` the most radiance
     L there; the relative MSE that the missing ground can make is at most mean((f L)^2) /
     mean(image^2). Camera rays only: a plane seen in a mirror is not counted (the corpus keeps
     mirrors away from the horizon)."""
+    half = ground_half(scene) if half is None else half
     planes = [i for i, s in enumerate(scene.shapes) if isinstance(s, warprt.Plane)]
     h, w = image.shape[:2]
     if not planes:
