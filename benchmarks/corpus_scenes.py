@@ -450,7 +450,9 @@ def glass_mesh(width=None, height=None):
     return warprt.Scene(
         camera=camera((0.3, 1.6, 3.2), (0.0, 0.4, 0.0), 45.0, size),
         shapes=(ground(), mesh(torus(128, 32, 0.5, 0.18), "glass", posed((-0.3, 0.5, 0.3), (60, 20, 0))),
-                warprt.Box(center=(0, 0, 0), size=(0.5, 0.5, 0.5), material="glass", transform=posed((0.8, 0.25, 0.5), (0, 35, 0))),
+                # (lifted off the ground: a glass face coplanar with the ground is ill-defined in any
+                # renderer, which of the two a ray meets first is float round-off)
+                warprt.Box(center=(0, 0, 0), size=(0.5, 0.5, 0.5), material="glass", transform=posed((0.8, 0.27, 0.5), (0, 35, 0))),
                 warprt.Box(center=(0, 0, 0), size=(0.4, 1.0, 0.4), material="red", transform=posed((-0.5, 0.5, -0.8), (0, 10, 0))),
                 warprt.Box(center=(0, 0, 0), size=(0.4, 0.6, 0.4), material="green", transform=posed((0.6, 0.3, -0.7), (0, -20, 0))),
                 warprt.Sphere(center=(0.1, 0.25, -0.3), radius=0.25, material="yellow")),
