@@ -75,7 +75,7 @@ import numpy as np  # noqa: E402
 import warprt  # noqa: E402
 from benchmarks import corpus_scenes as cs  # noqa: E402
 from benchmarks.mitsuba_export import (  # noqa: E402
-    ExportError, ground_half, load_mitsuba, moves, plane_beyond_extent, scene_at_time, scene_digest, to_mitsuba,
+    GROUND_HALF, ExportError, ground_half, load_mitsuba, moves, plane_beyond_extent, scene_at_time, scene_digest, to_mitsuba,
 )
 from benchmarks.sidebyside import (  # noqa: E402
     SETTLE_S, TARGETS, THREADS, MitsubaSide, PassSum, WarprtSide, compare, effective_config, machine_info,
@@ -180,7 +180,9 @@ def render_reference(scene: warprt.Scene, mi, args, log) -> dict:
     floor_goal = args.ref_floor * (MOVING_FLOOR_FACTOR if moving else 1)
     settings = {"sampler": MITSUBA_SAMPLER, "pass_spp": pass_spp, "floor": floor_goal,
                 "min_spp": args.ref_min_spp, "max_spp": args.ref_max_spp, "max_s": args.ref_max_s, "seed": 1_000_003,
-                "time_slices": moving, "time_strata": TIME_STRATA if moving else 0, "ground_half": ground_half(scene)}
+                "time_slices": moving, "time_strata": TIME_STRATA if moving else 0}
+    if ground_half(scene) != GROUND_HALF:  # (a key of its own under a directional light)
+        settings["ground_half"] = ground_half(scene)
     key = reference_key(scene, mi, settings)
     path = Path(args.cache_dir) / f"ref-{key}.npz"
     if path.exists():
