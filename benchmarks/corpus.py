@@ -453,11 +453,12 @@ def markdown_split(results: dict, split: str) -> str:
     summary = results.get("summary", {}).get(split, {})
     for target in reversed(TARGETS):
         t = f"{target:g}"
-        lines.append(f"Time to relMSE {t}, warprt / Mitsuba (below 1: warprt is faster)"
+        label = f"{target:.0e}".replace("e-0", "e-")
+        lines.append(f"Time to relMSE {label}, warprt / Mitsuba (below 1: warprt is faster)"
                      + (", in brackets the range of the repeats' own ratios:" if target == min(TARGETS) else ":"))
         lines.append("")
         head = ["scene", "kind", "size"] + (["same image?"] if target == min(TARGETS) else []) + [
-            f"Mitsuba → {t}"] + [f"`{c}`" for c in configs]
+            f"Mitsuba → {label}"] + [f"`{c}`" for c in configs]
         lines.append("| " + " | ".join(head) + " |")
         lines.append("|" + " --- |" * len(head))
         for r in recs:
