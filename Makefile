@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
 
-.PHONY: render test mutate fuzz-signals bench bench-peers bench-newton install clean
+.PHONY: render test mutate fuzz-signals bench bench-corpus bench-peers bench-newton install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,14 +37,20 @@ FUZZ_ARGS ?= --trials 100
 fuzz-signals: $(STAMP)
 	$(PY) -m tests.fuzz_signals $(FUZZ_ARGS)
 
-# speed, accuracy and compile cost, then the side by side with Mitsuba 3 where the `peers` extra
-# is installed (without it benchmarks.peers says so in one line and skips)
+# speed, accuracy and compile cost, then the corpus side by side with Mitsuba 3 where the `peers`
+# extra is installed (without it benchmarks.corpus says so in one line and skips)
 bench: $(STAMP)
 	$(PY) -m benchmarks.run
-	$(PY) -m benchmarks.peers $(PEERS_ARGS)
+	$(PY) -m benchmarks.corpus $(CORPUS_ARGS)
 
-# warprt against Mitsuba 3 (the optional `peers` extra); Mitsuba's fast llvm_ad_rgb variant also
-# needs the LLVM shared library (e.g. apt-get install libllvm19), else it falls back to scalar_rgb
+# the corpus alone (31 scenes, training and validation halves; e.g. CORPUS_ARGS="--split train --quick")
+bench-corpus: $(STAMP)
+	$(PY) -m pip install --quiet -e ".[peers]"
+	$(PY) -m benchmarks.corpus $(CORPUS_ARGS)
+
+# warprt against Mitsuba 3 on the six scenes of benchmarks.peers (the optional `peers` extra);
+# Mitsuba's fast llvm_ad_rgb variant also needs the LLVM shared library (e.g. apt-get install
+# libllvm19), else it falls back to scalar_rgb
 bench-peers: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[peers]"
 	$(PY) -m benchmarks.peers $(PEERS_ARGS)
