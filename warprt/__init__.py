@@ -14,7 +14,7 @@ from .records import Features
 from .errors import RenderError, SceneError
 from .image import check_output, read_exr, save_image
 from .query import camera_rays, trace_rays
-from . import animation
+from . import animation, fast
 from .scene.assets import load_assets
 from .render import Renderer, RenderResult, render
 from .worlds import BatchRenderer, BatchResult
