@@ -26,6 +26,7 @@ from .accel import (
     mesh_tree_ray, packet_node, safe_inverse, slab,
 )
 from ._warp import build_once
+from .fast import FAST_ANALYTIC_PACKETS, FAST_SHADOW_PACKETS
 from .geometry import (
     SPAWN_REL, abs3, box_roots, capsule_roots, cylinder_roots, disk_extent, interval_hit, intersect_disk, light_cells,
     intersect_plane, intersect_rect, intersect_sphere, max_abs, plane_hits_packet, plane_leaf_packet, quat_rotate_mag,
@@ -601,11 +602,11 @@ def make_trace(F: Features) -> SimpleNamespace:
             qu = PacketF()
             qv = PacketF()
             qf = PacketI()
-            done = mesh_bins_packet(scene.insts[i].mesh, scene.insts[i].bins, scene.insts[i].tree_tris, ox, oy, oz,
-                                    dx, dy, dz, reach, qt, qu, qv, qf)
+            done = mesh_bins_packet(scene.insts[i].mesh, scene.insts[i].bins, scene.insts[i].tree_tris,
+                                    scene.insts[i].prefetch, ox, oy, oz, dx, dy, dz, reach, qt, qu, qv, qf)
             if done == 0:
-                done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].wide, scene.insts[i].tree_tris, ox, oy,
-                                        oz, dx, dy, dz, reach, qt, qu, qv, qf)
+                done = mesh_tree_packet(scene.insts[i].mesh, scene.insts[i].wide, scene.insts[i].tree_tris,
+                                        scene.insts[i].prefetch, ox, oy, oz, dx, dy, dz, reach, qt, qu, qv, qf)
             for k in range(lanes):
                 if reach[k] < 0.0:
                     continue
@@ -697,16 +698,18 @@ def make_trace(F: Features) -> SimpleNamespace:
         the BVH together: a node is opened while any lane's ray meets its box before that lane's
         nearest hit, children nearest first by the least entry over the lanes, so the rays of
         one pixel share each node's load and the per-lane box tests (a fixed-length loop the
-        C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0."""
+        C++ compiler vectorises) run side by side. Lanes from ``lanes`` on must have best < 0.
+        With analytic_packets switched off (``warprt.fast``) each lane goes alone."""
         hits = PacketHits()
         hits.best = pk.best
         hits.kind = pk.kind
         hits.index = pk.index
-        if scene.bvh_root < 0:
+        each = (scene.fast_off & FAST_ANALYTIC_PACKETS) != 0
+        if scene.bvh_root < 0 or each:
             # no analytic BVH: the spheres, planes and rectangles each for all lanes at once, in the
             # loops' order (kinds and rows ascending: a hit replaces another only when strictly
             # nearer, as in analytic_nearest); with disks or solids, the analytic shapes ray by ray
-            alone = scene.n_disks > 0
+            alone = scene.n_disks > 0 or each
             if wp.static(F.solids):
                 alone = True
             if not alone:
@@ -1297,8 +1300,17 @@ def make_trace(F: Features) -> SimpleNamespace:
         meet nowhere else and which is not tested. With ``plight`` >= 0 they go to point light
         ``plight``: where it has a light buffer (``accel.light_buffer``), the lanes within its
         reach test the primitives of their cell instead of walking the BVH, the lanes of one cell
-        together; the answers are the walk's."""
+        together; the answers are the walk's. With shadow_packets switched off (``warprt.fast``)
+        each lane's answer is ``transmittance``'s, the lane alone."""
         blocked = int(0)
+        if (scene.fast_off & FAST_SHADOW_PACKETS) != 0:
+            for k in range(n):
+                if (lanes >> k) & 1 != 0:
+                    T = transmittance(scene, wp.vec3(ox[k], oy[k], oz[k]), wp.vec3(dx[k], dy[k], dz[k]), t_max[k],
+                                      time[k], own_rect)
+                    if wp.max(T) <= 0.0:
+                        blocked = blocked | (1 << k)
+            return blocked
         left = lanes
         use_bvh = scene.bvh_root >= 0
         if not use_bvh:
