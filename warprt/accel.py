@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -905,15 +906,24 @@ _WIDE_ORDER = r"""
 """
 
 
+def _no_prefetch(text: str) -> str:
+    """``text`` without its prefetches (``warprt.fast``: node_prefetch switched off)."""
+    return re.sub(r"__builtin_prefetch\([^;]*\)", "(void)0", text)
+
+
 def _splice(snippet: str) -> str:
     """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
     ``_PREFETCH``, ``_LEAST8``, ``_BITS8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``,
-    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_LEAVES``, ``_WIDE_ORDER``) in place."""
+    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_LEAVES``, ``_WIDE_ORDER``) in place; the node
+    prefetches (``_PREFETCH``, the wide visits') only while node_prefetch is on (``warprt.fast``)."""
+    keep = not fast.import_off("node_prefetch")
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
                        ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8),
                        ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_RAYS", _LANE_RAYS),
                        ("WIDE_VISIT", _WIDE_VISIT), ("WIDE_VISIT_CONES", _WIDE_VISIT_CONES),
                        ("WIDE_LEAVES", _WIDE_LEAVES), ("WIDE_ORDER", _WIDE_ORDER)):
+        if not keep and name in ("PREFETCH", "WIDE_VISIT", "WIDE_VISIT_CONES"):
+            text = _no_prefetch(text)
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
