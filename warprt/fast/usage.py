@@ -13,9 +13,9 @@ from ..sampling import SAMPLER_IDS
 
 def in_use(renderer, adaptive: bool = False) -> dict[str, bool]:
     """For every mechanism, whether ``renderer``'s renders run it (``adaptive``: the renders are
-    adaptive). A mechanism switched off for the renderer is not in use; the others follow the
-    rules of ``Mechanism.applies``, from the records the build wrote (a table built, a field set)
-    and the kernel's features. Mechanisms whose work depends on the rays (a lane count reached, a
+    adaptive), by the rules of ``Mechanism.applies``, from the records the build wrote (a table
+    built, a field set) and the kernel chosen; a kernel-, render- or import-stage mechanism switched
+    off for the renderer is not in use. Mechanisms whose work depends on the rays (a lane count reached, a
     lane in a box) count as used where the scene gives them that work to do."""
     built, F, scene = renderer.built, renderer.features, renderer.scene
     d = built.data
@@ -65,4 +65,7 @@ def in_use(renderer, adaptive: bool = False) -> dict[str, bool]:
         "native_counts": cpu and adaptive,
     }
     assert set(use) == set(MECHANISMS)
-    return {name: bool(v) and name not in renderer.fast_off for name, v in use.items()}
+    # (build switches show in the records, camera packets in the kernel chosen; the others are read
+    # in the kernel or per render: switched off, they are not used)
+    blind = {name for name, m in MECHANISMS.items() if m.stage in ("kernel", "render", "import")}
+    return {name: bool(v) and not (name in blind and name in renderer.fast_off) for name, v in use.items()}
