@@ -13,11 +13,9 @@ import sys
 
 import numpy as np
 import pytest
-import warp as wp
 
 import warprt
 from warprt import accel, fast
-from warprt._warp import MODULE_OPTIONS
 from warprt.fast.usage import in_use
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -185,111 +183,49 @@ def test_the_registry_covers_every_switch_in_the_code():
         assert name in read, f"{name} is registered but no code reads its switch"
 
 
-# --- node_prefetch, compiled in when warprt is imported: its traversals without the prefetches --
-
-def _probe_kernels():
-    @wp.kernel(enable_backward=False, module="unique", module_options=MODULE_OPTIONS)
-    def probe(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root: int, wide: wp.uint64,
-              cones: wp.uint64, wide_cones: wp.uint64, o: wp.array(dtype=wp.vec3, ndim=2),
-              d: wp.array(dtype=wp.vec3, ndim=2), out: wp.array(dtype=float, ndim=2)):
-        i = wp.tid()
-        ox, oy, oz = accel.PacketF(), accel.PacketF(), accel.PacketF()
-        dx, dy, dz = accel.PacketF(), accel.PacketF(), accel.PacketF()
-        tm = accel.PacketF()
-        for l in range(accel.PACKET):
-            ox[l] = o[i, l][0]
-            oy[l] = o[i, l][1]
-            oz[l] = o[i, l][2]
-            dx[l] = d[i, l][0]
-            dy[l] = d[i, l][1]
-            dz[l] = d[i, l][2]
-            tm[l] = 10.0
-            q = accel.mesh_tree_ray(mid, nodes, kids, tris, root, o[i, l], d[i, l], 10.0)
-            for c in range(5):
-                out[i, 8 * c + l] = q[c]
-            out[i, 40 + l] = float(accel.mesh_tree_occluded(nodes, kids, tris, root, cones, o[i, l], d[i, l], 10.0))
-        tt, tu, tv, tf = accel.PacketF(), accel.PacketF(), accel.PacketF(), accel.PacketI()
-        out[i, 48] = float(accel.mesh_tree_packet(mid, wide, tris, 1, ox, oy, oz, dx, dy, dz, tm, tt, tu, tv, tf))
-        for l in range(accel.PACKET):
-            out[i, 49 + l] = tt[l]
-            out[i, 57 + l] = float(tf[l])
-        out[i, 65] = float(accel.mesh_tree_occluded_packet(wide, tris, wide_cones, ox, oy, oz, dx, dy, dz, tm, 255))
-
-    return probe
+# --- the import-stage switches (node_prefetch, shadow_packets), compiled in as warprt is imported --
 
 
-def _probe_rays():
-    rng = np.random.default_rng(5)
-    o = rng.normal(size=(64, 8, 3))
-    o = o / np.linalg.norm(o, axis=-1, keepdims=True) * 2.0
-    d = rng.uniform(-0.7, 0.7, size=(64, 8, 3)) - o
-    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-    return o.astype(np.float32), d.astype(np.float32)
-
-
-def probe_answers() -> list:
-    """The four traversals' answers (nearest hits, occlusion, packets) for 64 packets of rays from
-    outside a closed torus towards points around it."""
+def _mesh_scene() -> warprt.Scene:
+    """A torus on a plane under a point light (the kernel of meshes alone): camera packets through
+    its wide tree, its shadow rays in packets through it, and alone through its binary tree."""
     v, f = _torus()
-    mesh = wp.Mesh(points=wp.array(v.astype(np.float32), dtype=wp.vec3, device="cpu"),
-                   indices=wp.array(f.reshape(-1).astype(np.int32), dtype=wp.int32, device="cpu"), bvh_leaf_size=1)
-    tree = accel.MeshTree(mesh, len(f))
-    tree.find_balls(v, f)
-    o, d = _probe_rays()
-    out = wp.zeros((64, 66), dtype=float, device="cpu")
-    wp.launch(_probe_kernels(), dim=64, device="cpu",
-              inputs=[mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, tree.wide.ptr, tree.cones.ptr,
-                      tree.wide_cones.ptr, wp.array(o, dtype=wp.vec3, device="cpu"),
-                      wp.array(d, dtype=wp.vec3, device="cpu"), out])
-    return out.numpy().tolist()
+    return warprt.Scene(
+        camera=warprt.Camera(eye=(0.0, 1.6, 2.2), look_at=(0.0, 0.4, 0.0), fov=45, width=32, height=24),
+        shapes=(warprt.Plane(material="floor"),
+                warprt.Mesh(vertices=v, faces=f, material="white", transform=warprt.Transform(translate=(0.0, 0.3, 0.0)))),
+        materials={"floor": warprt.Material(kd=0.7), "white": warprt.Material(kd=0.8)},
+        lights=(warprt.PointLight(position=(1.0, 2.5, 1.0), intensity=1.5),), ambient=0.02).with_settings(sampler="sobol")
 
 
-def test_node_prefetch_off_compiles_out_and_the_traversals_answer_as_before():
-    """node_prefetch is set by WARPRT_FAST_OFF when warprt is imported: a process started with it
-    off has traversal snippets without the node prefetches (the hits' prefetches stay: another
-    switch), which compile and answer as the traversals do (a prefetch changes no value; the
-    benchmark's renders compare the images bit for bit): each ray's nearest triangle that of a
-    float64 brute force, the packets' answers each lane's alone."""
-    env = dict(os.environ, **{fast.ENV: "node_prefetch"})
-    code = ("import json, sys; sys.path.insert(0, sys.argv[1]); import test_fast_switches as t; from warprt import accel; "
+def mesh_render() -> list:
+    r = warprt.Renderer(_mesh_scene(), device="cpu")
+    res = r.render(spp=6, seed=2, workers=2, progress=False, adaptive=True)
+    return [res.image.view(np.uint32).ravel().tolist(), int(res.rays), sorted(r.fast_off)]
+
+
+def test_import_stage_switches_compile_out_and_give_the_same_image():
+    """node_prefetch and shadow_packets are set by WARPRT_FAST_OFF when warprt is imported: a
+    process started with them off has traversal snippets without the node prefetches (the hits'
+    prefetches stay: another switch) and a kernel whose packets' shadow rays go each alone, and it
+    renders the same image bit for bit."""
+    r = warprt.Renderer(_mesh_scene(), device="cpu")
+    use = in_use(r, adaptive=True)
+    assert use["node_prefetch"] and use["shadow_packets"] and use["mesh_shadow_packets"] and use["mesh_packets"]
+    env = dict(os.environ, **{fast.ENV: "node_prefetch,shadow_packets"})
+    code = ("import json, sys; sys.path.insert(0, sys.argv[1]); import test_fast_switches as t; "
+            "from warprt import accel, trace; "
             "print(json.dumps([[s.count('__builtin_prefetch') for s in (accel._TREE_RAY, accel._TREE_OCCLUDED, "
-            "accel._TREE_OCCLUDED_PACKET, accel._TREE_PACKET)], t.probe_answers()]))")
+            "accel._TREE_OCCLUDED_PACKET, accel._TREE_PACKET)], trace.SHADOW_LANES_ALONE, t.mesh_render()]))")
     done = subprocess.run([sys.executable, "-c", code, str(ROOT / "tests")], env=env, capture_output=True, text=True,
-                          timeout=300)
+                          timeout=500)
     assert done.returncode == 0, done.stderr[-2000:]
-    counts, answers = json.loads(done.stdout.strip().splitlines()[-1])
-    assert counts == [0, 0, 0, 3]  # (mesh_tree_packet keeps its hits' prefetch)
+    counts, alone, (image, rays, off) = json.loads(done.stdout.strip().splitlines()[-1])
+    assert counts == [0, 0, 0, 3] and alone  # (mesh_tree_packet keeps its hits' prefetch)
+    assert {"node_prefetch", "shadow_packets", "mesh_shadow_packets", "light_buffers"} <= set(off)
     on = [s.count("__builtin_prefetch") for s in (accel._TREE_RAY, accel._TREE_OCCLUDED, accel._TREE_OCCLUDED_PACKET,
                                                    accel._TREE_PACKET)]
     assert all(c > 0 for c in on[:3]) and on[3] > 3
-    a = np.array(answers, dtype=np.float32)
-    t, face = a[:, 0:8], a[:, 24:32] * 4096 + a[:, 32:40]
-    # a float64 brute force (Moller-Trumbore) over every triangle
-    v, f = _torus()
-    o, d = (x.astype(np.float64).reshape(-1, 3) for x in _probe_rays())
-    p0, e1, e2 = v[f[:, 0]], v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
-    pv = np.cross(d[:, None], e2[None])
-    det = np.einsum("rfk,fk->rf", pv, e1)
-    tv = o[:, None] - p0[None]
-    u = np.einsum("rfk,rfk->rf", tv, pv) / det
-    qv = np.cross(tv, e1[None])
-    w = np.einsum("rk,rfk->rf", d, qv) / det
-    tt = np.einsum("fk,rfk->rf", e2, qv) / det
-    hit = (u >= 0) & (w >= 0) & (u + w <= 1) & (tt > 0) & (tt < 10)
-    tt = np.where(hit, tt, np.inf)
-    near = tt.min(axis=1)
-    second = np.sort(tt, axis=1)[:, 1]
-    clear = (second > near * (1 + 1e-4)) | ~np.isfinite(near)  # (no tie within rounding: an edge, a corner)
-    t, face = t.reshape(-1), face.reshape(-1)
-    assert clear.sum() > 450 and np.isfinite(near).sum() > 200
-    assert np.array_equal(np.isfinite(near)[clear], (t >= 0)[clear])
-    got = np.isfinite(near) & clear
-    assert np.array_equal(face[got], tt.argmin(axis=1)[got].astype(np.float32))
-    assert np.allclose(t[got], near[got], rtol=1e-5)
-    occluded = a[:, 40:48].reshape(-1)
-    assert np.array_equal(occluded[clear], np.isfinite(near)[clear].astype(np.float32))
-    # the packets: each lane's answer as alone
-    assert np.all(a[:, 48] == 1)
-    assert np.array_equal(a[:, 49:57], np.where(a[:, 0:8] >= 0, a[:, 0:8], -1.0))
-    assert np.array_equal(a[:, 57:65], np.where(a[:, 0:8] >= 0, a[:, 24:32] * 4096 + a[:, 32:40], -1.0))
-    assert np.array_equal(a[:, 65].astype(int), [sum(1 << l for l in range(8) if a[i, 40 + l] > 0) for i in range(64)])
+    mine, my_rays, my_off = mesh_render()
+    assert my_off == [] and np.array(mine, np.uint32).view(np.float32).mean() > 0.05
+    assert image == mine and rays == my_rays

@@ -25,8 +25,8 @@ When a switch is read (``Mechanism.stage``):
 * ``variant``: picks another render-kernel variant (camera packets: the one-by-one kernel CUDA
   runs);
 * ``render``: by ``render.Renderer`` or ``film`` on the host, per render;
-* ``import``: compiled into native snippets when ``warprt`` is imported, so only the environment
-  variable switches it (set before Python starts).
+* ``import``: compiled in when ``warprt`` is imported (native snippets, or code that a run-time
+  test would slow down), so only the environment variable switches it (set before Python starts).
 """
 
 from __future__ import annotations
@@ -45,10 +45,9 @@ ENV = "WARPRT_FAST_OFF"  # a comma-separated list of mechanisms to switch off
 FAST_ANALYTIC_PACKETS = 1 << 0
 FAST_MESH_PACKETS = 1 << 1
 FAST_SHADING_PACKETS = 1 << 2
-FAST_SHADOW_PACKETS = 1 << 3
-FAST_SOBOL_PACKETS = 1 << 4
-FAST_CAMERA_PACKET_RAYS = 1 << 5
-FAST_COLUMN_BLOCKS = 1 << 6
+FAST_SOBOL_PACKETS = 1 << 3
+FAST_CAMERA_PACKET_RAYS = 1 << 4
+FAST_COLUMN_BLOCKS = 1 << 5
 
 
 @dataclass(frozen=True)
@@ -81,9 +80,10 @@ _LIST = (
               "camera packets in kernels without secondary rays",
               "integrator.render_pixels (shaded)", "kernel", FAST_SHADING_PACKETS, ("camera_packets",)),
     Mechanism("shadow_packets", "a shaded packet's shadow rays tested together (trace.occluded_packet); off: each "
-              "lane's alone through trace.transmittance",
+              "lane's alone through trace.transmittance (trace.lanes_occluded)",
               "shading packets: point lights, and rectangle lights' lanes drawn by area (other emitters go alone)",
-              "trace.occluded_packet", "kernel", FAST_SHADOW_PACKETS, ("shading_packets",)),
+              "trace.occluded_packet (compiled in: a run-time test there cost the packets 3-14% of the CPU time "
+              "of peer scenes (d) and (e))", "import", requires=("shading_packets",)),
     Mechanism("sobol_packets", "a packet's Sobol points drawn for its 8 lanes at once (sampling.sobol_packet, "
               "sobol_split_setup / sobol_split_draw)",
               "camera packets with the sobol sampler (camera samples; area-light samples of shaded packets)",
