@@ -14,7 +14,9 @@ before timing (compile, the light-sample pilot and the first pass's timing exclu
 repeat renders every renderer once, in an order rotated from repeat to repeat, with 1 and with 2
 worker threads. The time is the wall time of ``Renderer.render`` (passes and, adaptive, the counts
 between them); the ratio off/on is the ratio of the minima over the repeats, the spread the least and
-largest of the repeats' paired ratios (off over on in the same repeat). Every render's image is
+largest of the repeats' paired ratios (off over on in the same repeat). The process CPU time of
+each render is kept too (its ratio of minima: less sensitive to other work on a shared machine,
+blind to how evenly the workers share the rows). Every render's image is
 compared with the all-on image: a mechanism must change no bit. The geometric means over the scenes
 take 1 where a mechanism does not apply. The host build time of the mechanisms that build tables
 (``warprt.fast.build_times``: the BVH, light buffers, balls, escaping faces, horizons, cones, bins) is
@@ -22,7 +24,7 @@ that of the all-on renderer's build.
 
 ``--config`` is a sampler with options, as in benchmarks.peers: ``sobol+split+adaptive`` (the
 default: Sobol points, area lights with ``samples = "auto"``, adaptive sampling) or e.g.
-``stratified`` (today's defaults), or ``scene`` (the scene's own settings). Writes
+``stratified`` (today's defaults), or ``defaults`` (the scene's own settings). Writes
 out/ablation/ablation.json (``--out``).
 """
 
@@ -67,20 +69,21 @@ class SceneSpec:
             from benchmarks.peers import build_scene
 
             return build_scene(self.key)
-        return {e.name: e for e in _corpus().SCENES}[self.key].build()
+        return {e.name: e for e in _corpus_entries()}[self.key].build()
 
 
-def _corpus():
+def _corpus_entries() -> list:
+    """benchmarks.corpus's entries (``.name``, ``.kind``, ``.split``, ``.build()``)."""
     try:
         from benchmarks import corpus
     except ImportError as e:
-        raise SystemExit(f"--corpus needs benchmarks/corpus.py (benchmarks.corpus.SCENES), which is not here: {e}")
-    return corpus
+        raise SystemExit(f"--split needs benchmarks/corpus.py, which is not here: {e}")
+    return list(getattr(corpus, "SCENES", None) or corpus.CORPUS)
 
 
 def scene_specs(args) -> list[SceneSpec]:
     if args.split is not None:
-        entries = [e for e in _corpus().SCENES if args.split == "all" or e.split == args.split]
+        entries = [e for e in _corpus_entries() if args.split == "all" or e.split == args.split]
         specs = [SceneSpec(e.name, e.kind, "corpus", e.name) for e in entries]
     else:
         from benchmarks.peers import SCENES
@@ -98,7 +101,7 @@ def scene_specs(args) -> list[SceneSpec]:
 def configured(scene: warprt.Scene, config: str) -> tuple[warprt.Scene, bool]:
     """The scene with the render configuration ``config`` (see the module docstring) and whether
     its renders are adaptive."""
-    if config == "scene":
+    if config in ("scene", "defaults"):
         return scene, False
     sampler, *options = config.split("+")
     unknown = set(options) - {"split", "adaptive"}
@@ -134,10 +137,10 @@ class Local:
         self.adaptive = adaptive
 
     def render(self, spp: int, seed: int, workers: int) -> dict:
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         res = self.renderer.render(spp=spp, seed=seed, workers=workers, progress=False, adaptive=self.adaptive)
-        seconds = time.perf_counter() - t0
-        return dict(seconds=seconds, digest=digest(res.image), rays=int(res.rays), spp=int(res.spp))
+        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+        return dict(seconds=seconds, cpu=cpu, digest=digest(res.image), rays=int(res.rays), spp=int(res.spp))
 
     def close(self) -> None:
         self.renderer.close()
@@ -225,21 +228,24 @@ def study_scene(spec: SceneSpec, args, log) -> dict:
             if got["digest"] != ref["digest"] or got["rays"] != ref["rays"]:
                 differs[name] = differs.get(name, 0) + 1
         times = {name: [] for name in variants}
+        cpus = {name: [] for name in variants}
         order = list(variants)
         for r in range(args.repeats):
             k = r % len(order)
             for name in order[k:] + order[:k]:
                 got = variants[name].render(spp, seed, workers)
                 times[name].append(got["seconds"])
+                cpus[name].append(got["cpu"])
                 if got["digest"] != ref["digest"] or got["rays"] != ref["rays"]:
                     differs[name] = differs.get(name, 0) + 1
-        on = times["all on"]
+        on, on_cpu = times["all on"], cpus["all on"]
         rows = {}
         for name in names:
             paired = [a / b for a, b in zip(times[name], on)]
             rows[name] = dict(ratio=min(times[name]) / min(on), spread=[min(paired), max(paired)],
-                              seconds=times[name], identical=name not in differs)
-        rec["workers"][str(workers)] = dict(on_seconds=on, on_min=min(on), mechanisms=rows,
+                              cpu_ratio=min(cpus[name]) / min(on_cpu), seconds=times[name], cpu_seconds=cpus[name],
+                              identical=name not in differs)
+        rec["workers"][str(workers)] = dict(on_seconds=on, on_min=min(on), on_cpu=on_cpu, mechanisms=rows,
                                             differ=sorted(differs))
         log(f"  {workers} worker{'s' if workers > 1 else ''}: all on {min(on) * 1e3:.1f} ms (min of {len(on)}); "
             + ", ".join(f"{n} {rows[n]['ratio']:.3f}" for n in names))
@@ -303,6 +309,18 @@ def table(records: list[dict], summ: dict, workers: list[int]) -> str:
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("| all on (ms) | " + " | ".join(f"{r['workers'][str(w)]['on_min'] * 1e3:.0f}" for r in records)
                      + " | | | |")
+        lines.append(f"\n{w} worker{'s' if w > 1 else ''}: process CPU time off / all on (min of repeats); geometric "
+                     "mean over all scenes")
+        lines.append("| mechanism | " + " | ".join(keys) + " | geomean all |")
+        lines.append("|" + "---|" * (len(keys) + 2))
+        for name in fast.names():
+            cells, logs = [name], []
+            for r in records:
+                m = r["workers"][str(w)]["mechanisms"].get(name)
+                cells.append("—" if m is None else f"{m['cpu_ratio']:.3f}")
+                logs.append(0.0 if m is None else math.log(m["cpu_ratio"]))
+            cells.append(f"{math.exp(sum(logs) / len(logs)):.3f}")
+            lines.append("| " + " | ".join(cells) + " |")
     lines.append("\nhost build of the all-on renderer (s): total, then per mechanism")
     names = sorted({k for r in records for k in r["build_times"]})
     lines.append("| scene | total | " + " | ".join(names) + " |")
@@ -320,7 +338,8 @@ def main(argv=None) -> int:
                         help="scenes from benchmarks.corpus (its training or validation half, or all) instead of the "
                         "peer scenes")
     parser.add_argument("--config", default="sobol+split+adaptive",
-                        help="sampler[+split][+adaptive], or 'scene' (default sobol+split+adaptive)")
+                        help="sampler[+split][+adaptive], or 'defaults' (the scene's own settings; default "
+                        "sobol+split+adaptive)")
     parser.add_argument("--spp", type=int, default=0, help="samples per pixel (default: per scene, the least power "
                         "of two from 8 whose all-on render takes --target seconds)")
     parser.add_argument("--target", type=float, default=0.25, help="seconds of an all-on render for the spp choice")
