@@ -212,7 +212,7 @@ def study_scene(spec: SceneSpec, args, log) -> dict:
     for n in names:
         off = (n,)
         variants[n] = Remote(spec, args.config, off) if fast.MECHANISMS[n].stage == "import" else Local(scene, adaptive, off)
-    spp = args.spp or calibrate(base, args.target, max(args.workers))
+    spp = args.spp or calibrate(base, args.target, max(args.workers), args.min_spp)
     log(f"  {spp} spp ({'adaptive, ' if adaptive else ''}{args.config})")
     rec = dict(label=spec.label, kind=spec.kind, source=spec.source, key=spec.key, spp=spp, adaptive=adaptive,
                width=scene.camera.width, height=scene.camera.height, features=base.renderer.features.key,
@@ -341,8 +341,9 @@ def main(argv=None) -> int:
                         help="sampler[+split][+adaptive], or 'defaults' (the scene's own settings; default "
                         "sobol+split+adaptive)")
     parser.add_argument("--spp", type=int, default=0, help="samples per pixel (default: per scene, the least power "
-                        "of two from 8 whose all-on render takes --target seconds)")
+                        "of two from --min-spp whose all-on render takes --target seconds)")
     parser.add_argument("--target", type=float, default=0.25, help="seconds of an all-on render for the spp choice")
+    parser.add_argument("--min-spp", type=int, default=8, help="the least spp the choice starts from (default 8)")
     parser.add_argument("--repeats", type=int, default=5, help="timed renders per renderer and worker count")
     parser.add_argument("--workers", default="1,2", help="worker counts (default 1,2)")
     parser.add_argument("--only", default="", help="comma-separated mechanisms (default: every one a scene uses)")
