@@ -1667,12 +1667,12 @@ def _bins_against_tree(mesh, tree, rec, o, d, reach):
         bu = accel.PacketF()
         bv = accel.PacketF()
         bf = accel.PacketI()
-        served[i] = accel.mesh_bins_packet(mid, bins, tris, ox, oy, oz, dx, dy, dz, tm, bt, bu, bv, bf)
+        served[i] = accel.mesh_bins_packet(mid, bins, tris, 1, ox, oy, oz, dx, dy, dz, tm, bt, bu, bv, bf)
         tt = accel.PacketF()
         tu = accel.PacketF()
         tv = accel.PacketF()
         tf = accel.PacketI()
-        done = accel.mesh_tree_packet(mid, wide, tris, ox, oy, oz, dx, dy, dz, tm, tt, tu, tv, tf)
+        done = accel.mesh_tree_packet(mid, wide, tris, 1, ox, oy, oz, dx, dy, dz, tm, tt, tu, tv, tf)
         for l in range(accel.PACKET):
             if tm[l] >= 0.0:
                 via_bins[i, l] = wp.vec4(bt[l], bu[l], bv[l], float(bf[l]))

@@ -30,7 +30,7 @@ _EXPORTS = {
         "Mesh", "Plane", "PointLight", "Rectangle", "RectLight", "RenderSettings", "Scene", "Sphere", "SphereLight",
         "Transform", "load_scene", "parse_scene", "scene_from_string")},
 }
-_SUBMODULES = {"animation"}
+_SUBMODULES = {"animation", "fast"}
 
 __all__ = [
     "Animation", "BatchRenderer", "BatchResult", "Box", "Camera", "Capsule", "Cylinder", "DirectionalLight", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",

@@ -21,10 +21,13 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import warp as wp
+
+from . import fast
 
 BINS = 16  # SAH split candidates per axis and node
 SAH_MIN = 4  # nodes over this many primitives split by SAH, smaller ones at the object median
@@ -647,21 +650,32 @@ class MeshTree:
         self.wide: wp.array | None = None  # the 4-wide tree (``widen``) of a usable tree
         self.wide_cones: wp.array | None = None  # its normal cones
         self._wide_src: wp.array | None = None  # ``widen``'s sources, one a child slot
+        self.found_without = frozenset()  # the mechanisms find_balls left out (``warprt.fast``)
         self.refresh()
 
-    def find_balls(self, points: np.ndarray, faces: np.ndarray) -> None:
+    def find_balls(self, points: np.ndarray, faces: np.ndarray, off: frozenset = frozenset()) -> None:
         """Find the mesh's interior balls, escape horizons and normal cones (None where it has
-        none)."""
+        none, or where ``off`` switches them off: ``warprt.fast``)."""
+        self.found_without = off & _FOUND  # (what was left out: build.DeviceScene finds them again for others)
         edges = edge_keys(faces)
-        blocks = interior_balls(self.mesh, points, faces, edges)
+        blocks = None
+        if "interior_balls" not in off:
+            with fast.timed("interior_balls"):
+                blocks = interior_balls(self.mesh, points, faces, edges)
         self.balls = None if blocks is None else wp.array(blocks.reshape(-1), dtype=wp.float32,
                                                           device=self.mesh.device)
-        h = escape_horizons(self, points, faces, edges)
+        h = None
+        bounds = "escape_horizons" not in off and horizon_bounds_found(self, len(faces))
+        if "escaping_faces" not in off:
+            h = escape_horizons(self, points, faces, edges, bounds=bounds)
         self.escape = None if h is None else wp.array(h.reshape(-1), dtype=wp.uint32, device=self.mesh.device)
         # (the frames where the bounds were found: the escaping faces alone have every sector alike)
-        self.frames = None if h is None or not horizon_bounds_found(self, len(faces)) else wp.array(
+        self.frames = None if h is None or not bounds else wp.array(
             escape_frames(h[:, :3].copy().view(np.float32)).reshape(-1), dtype=wp.float32, device=self.mesh.device)
-        c = normal_cones(self, points, faces, edges)
+        c = None
+        if "normal_cones" not in off:
+            with fast.timed("normal_cones"):
+                c = normal_cones(self, points, faces, edges)
         self.cones = None if c is None else wp.array(c.reshape(-1), dtype=wp.float32, device=self.mesh.device)
         self.wide_cones = None if c is None or self.wide is None else wp.array(
             self.wide_rows(c.reshape(-1, 4)).reshape(-1), dtype=wp.float32, device=self.mesh.device)
@@ -701,7 +715,7 @@ class MeshTree:
             return dict(NO_TREE)
         return dict(tree_nodes=self.nodes.ptr, tree_kids=self.kids.ptr, tree_tris=self.tris.ptr, tree_root=self.root,
                     wide=self.wide.ptr, balls=0, n_balls=0, escape=0 if self.escape is None else self.escape.ptr,
-                    frames=0 if self.frames is None else self.frames.ptr,
+                    frames=0 if self.frames is None else self.frames.ptr, prefetch=1,
                     cones=0, wide_cones=0, shadow_packets=int(self.n_faces >= SHADOW_PACKET_TRIANGLES), bins=0)
 
     def ball_fields(self) -> dict:
@@ -714,8 +728,11 @@ class MeshTree:
         return dict(balls=self.balls.ptr, n_balls=self.balls.shape[0] // 4, cones=cones, wide_cones=wide_cones)
 
 
+# the mechanisms ``MeshTree.find_balls`` may leave out (``warprt.fast``)
+_FOUND = frozenset(("interior_balls", "escaping_faces", "escape_horizons", "normal_cones"))
+
 NO_TREE = dict(tree_nodes=0, tree_kids=0, tree_tris=0, tree_root=0, wide=0, balls=0, n_balls=0, escape=0, frames=0,
-               cones=0, wide_cones=0, shadow_packets=0, bins=0)
+               cones=0, wide_cones=0, shadow_packets=0, bins=0, prefetch=0)
 
 # the hit as five floats: t (-1: none), u, v, and the face index as face // 4096 and face % 4096
 # (each exact in a float32 for any face count Warp can index)
@@ -889,15 +906,24 @@ _WIDE_ORDER = r"""
 """
 
 
+def _no_prefetch(text: str) -> str:
+    """``text`` without its prefetches (``warprt.fast``: node_prefetch switched off)."""
+    return re.sub(r"__builtin_prefetch\([^;]*\)", "(void)0", text)
+
+
 def _splice(snippet: str) -> str:
     """A traversal snippet with its shared pieces (``_WOOP``, ``_RAY``, ``_SHEAR``, ``_NODE_BOXES``,
     ``_PREFETCH``, ``_LEAST8``, ``_BITS8``, ``_LANE_RAYS``, ``_LANE_SHEAR``, ``_LANE_TRI``,
-    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_LEAVES``, ``_WIDE_ORDER``) in place."""
+    ``_WIDE_VISIT``, ``_WIDE_VISIT_CONES``, ``_WIDE_LEAVES``, ``_WIDE_ORDER``) in place; the node
+    prefetches (``_PREFETCH``, the wide visits') only while node_prefetch is on (``warprt.fast``)."""
+    keep = not fast.import_off("node_prefetch")
     for name, text in (("WOOP", _WOOP), ("RAY", _RAY), ("SHEAR", _SHEAR), ("NODE_BOXES", _NODE_BOXES),
                        ("PREFETCH", _PREFETCH), ("LEAST8", _LEAST8), ("BITS8", _BITS8),
                        ("LANE_SHEAR", _LANE_SHEAR), ("LANE_TRI", _LANE_TRI), ("LANE_RAYS", _LANE_RAYS),
                        ("WIDE_VISIT", _WIDE_VISIT), ("WIDE_VISIT_CONES", _WIDE_VISIT_CONES),
                        ("WIDE_LEAVES", _WIDE_LEAVES), ("WIDE_ORDER", _WIDE_ORDER)):
+        if not keep and name in ("PREFETCH", "WIDE_VISIT", "WIDE_VISIT_CONES"):
+            text = _no_prefetch(text)
         snippet = snippet.replace(f"@{name}@\n", text.lstrip("\n"))
     return snippet
 
@@ -1799,19 +1825,21 @@ def horizon_bounds_found(tree: "MeshTree", n: int) -> bool:
 
 
 def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
-                    edges: tuple | None = None) -> np.ndarray | None:
+                    edges: tuple | None = None, bounds: bool = True) -> np.ndarray | None:
     """Every face's escape horizons (see above) as uint32 (F, 8), or None where no face has an
     open sector (``edges``: the faces' ``edge_keys``). Meshes of up to HORIZON_MAX_TRIANGLES
     triangles get the traversal's bounds over the tree copy (a CPU mesh's: only the CPU has
-    one); larger ones, and trees the copy cannot take, the escaping faces alone
-    (``escape_sides``: zero on their escaping side, the other closed)."""
+    one); larger ones, trees the copy cannot take, and ``bounds`` False (``warprt.fast``:
+    escape_horizons switched off) the escaping faces alone (``escape_sides``: zero on their
+    escaping side, the other closed)."""
     v = np.asarray(points, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     n = len(f)
     edges = edge_keys(f) if edges is None else edges
-    known = escape_sides(v, f, edges)
+    with fast.timed("escaping_faces"):
+        known = escape_sides(v, f, edges)
     known = np.zeros(n, dtype=np.uint8) if known is None else known
-    if not horizon_bounds_found(tree, n):
+    if not bounds or not horizon_bounds_found(tree, n):
         if not known.any():
             return None
         h = np.zeros((n, ESCAPE_WORDS), dtype=np.uint32)
@@ -1827,11 +1855,12 @@ def escape_horizons(tree: "MeshTree", points: np.ndarray, faces: np.ndarray,
     out = wp.empty(ESCAPE_WORDS * n, dtype=wp.uint32, device=dev)
     esc = wp.array(known, dtype=wp.uint8, device=dev)
     tol = float(ESCAPE_TOL * float(np.abs(v).max(initial=0.0)))
-    _in_pieces(n, 256, dev, lambda lo, hi: wp.launch(
-        horizon_kernel, dim=hi - lo, device=dev,
-        inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
-                HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr]))
-    h = out.numpy().reshape(n, ESCAPE_WORDS)
+    with fast.timed("escape_horizons"):
+        _in_pieces(n, 256, dev, lambda lo, hi: wp.launch(
+            horizon_kernel, dim=hi - lo, device=dev,
+            inputs=[tree.mesh.id, tree.nodes.ptr, tree.kids.ptr, tree.tris.ptr, tree.root, lo, esc.ptr, tol,
+                    HORIZON_MARGIN, HORIZON_DETAIL, HORIZON_GIVE_UP, HORIZON_BUDGET, sides, out.ptr]))
+        h = out.numpy().reshape(n, ESCAPE_WORDS)
     return h if np.any(h[:, 3]) else None
 
 
@@ -1990,7 +2019,7 @@ if (wide != 0) {
                 t[l] = bt[l]; u[l] = bu[l]; v[l] = bv[l];
                 const int f = mesh.bvh.primitive_indices[bh[l]];
                 face[l] = f;
-                if (mesh.num_tris >= HIT_PREFETCH_TRIANGLES) {  // (see above)
+                if (prefetch != 0 && mesh.num_tris >= HIT_PREFETCH_TRIANGLES) {  // (see above)
                     const int* ix = mesh.indices + 3 * f;
                     __builtin_prefetch(&mesh.points[ix[0]]); __builtin_prefetch(&mesh.points[ix[1]]);
                     __builtin_prefetch(&mesh.points[ix[2]]);
@@ -2007,7 +2036,7 @@ return alone ? 0 : 1;
 
 
 @wp.func_native(_TREE_PACKET)
-def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64,
+def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64, prefetch: int,
                      ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF,
                      t: wp.ref[PacketF], u: wp.ref[PacketF], v: wp.ref[PacketF], face: wp.ref[PacketI]) -> int:
     """Each lane's nearest triangle of mesh ``mid`` in [0, t_max] (t -1 and face -1 for none; see
@@ -2111,9 +2140,11 @@ for (int l = 0; l < 8; ++l) {
             t[l] = bt; u[l] = bu; v[l] = bv;
             const int f = mesh.bvh.primitive_indices[bh];
             face[l] = f;
-            const int* ix = mesh.indices + 3 * f;  // (as mesh_tree_packet prefetches a large mesh's hits)
-            __builtin_prefetch(&mesh.points[ix[0]]); __builtin_prefetch(&mesh.points[ix[1]]);
-            __builtin_prefetch(&mesh.points[ix[2]]);
+            if (prefetch != 0) {  // (as mesh_tree_packet prefetches a large mesh's hits)
+                const int* ix = mesh.indices + 3 * f;
+                __builtin_prefetch(&mesh.points[ix[0]]); __builtin_prefetch(&mesh.points[ix[1]]);
+                __builtin_prefetch(&mesh.points[ix[2]]);
+            }
         } else {
             t[l] = -1.0f; face[l] = -1;
         }
@@ -2159,7 +2190,7 @@ def mesh_bins_ray(mid: wp.uint64, bins: wp.uint64, tris: wp.uint64, o: wp.vec3, 
 
 
 @wp.func_native(_BINS_PACKET)
-def mesh_bins_packet(mid: wp.uint64, bins: wp.uint64, tris: wp.uint64,
+def mesh_bins_packet(mid: wp.uint64, bins: wp.uint64, tris: wp.uint64, prefetch: int,
                      ox: PacketF, oy: PacketF, oz: PacketF, dx: PacketF, dy: PacketF, dz: PacketF, t_max: PacketF,
                      t: wp.ref[PacketF], u: wp.ref[PacketF], v: wp.ref[PacketF], face: wp.ref[PacketI]) -> int:
     """``mesh_tree_packet``'s answer through the mesh's camera bins (see above); 0 where the

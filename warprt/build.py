@@ -19,7 +19,7 @@ import weakref
 import numpy as np
 import warp as wp
 
-from . import accel
+from . import accel, fast
 from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes, light_buffer
 from .camera import camera_data
 from .errors import RenderError, SceneError
@@ -47,10 +47,13 @@ class DeviceScene:
     """A scene's tables on one device. Keeps every ``wp.Mesh`` alive while its id is in use."""
 
     def __init__(self, scene: Scene, device: "wp.context.Device", assets: dict | None = None,
-                 light_buffers: bool = True):
+                 light_buffers: bool = True, fast_off=None):
         self.scene = scene
         self.device = device
-        self.light_buffers = light_buffers  # whether CPU point lights get light buffers (_light_buffers)
+        # the speed mechanisms switched off (``warprt.fast``; None: those switched off now)
+        self.fast_off: frozenset = fast.current() if fast_off is None else fast.closure(fast.check(fast_off))
+        # whether CPU point lights get light buffers (_light_buffers)
+        self.light_buffers = light_buffers and "light_buffers" not in self.fast_off
         # mesh assets by key: (wp.Mesh, vertex normals); a previous DeviceScene's assets can be
         # passed in so that re-posed or re-lit frames never rebuild a BVH
         self.assets: dict[tuple, tuple] = dict(assets or {})
@@ -119,11 +122,15 @@ class DeviceScene:
                                            **({"bvh_leaf_size": 1} if dev.is_cpu else {}))
                             tree = MeshTree(mesh, len(f32)) if dev.is_cpu else None
                             if tree is not None:
-                                tree.find_balls(v32, f32)  # balls, horizons, cones for shadow rays (accel.py)
+                                # balls, horizons, cones for shadow rays (accel.py)
+                                tree.find_balls(v32, f32, self.fast_off)
                             self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
                             _ASSET_EXTENT[mesh] = float(np.linalg.norm(np.ptp(
                                 v32[f32.reshape(-1)].astype(np.float64), axis=0)))
                         mesh, vn, tree = self.assets[key]
+                        if tree is not None and tree.found_without != self.fast_off & accel._FOUND:
+                            # (an asset another DeviceScene built with other switches: warprt.fast)
+                            tree.find_balls(mesh.points.numpy(), mesh.indices.numpy().reshape(-1, 3), self.fast_off)
                         trees.append(tree)
                         asset_ids[key] = len(self.meshes)
                         self.meshes.append(mesh)
@@ -140,7 +147,7 @@ class DeviceScene:
                                     pos1=t1.translate, rot1=same_hemisphere(t1.quaternion(), q0), scl1=t1.scale,
                                     mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a],
                                     olo=(0.0, 0.0, 0.0), ohi=(0.0, 0.0, 0.0), lo=(0.0, 0.0, 0.0), hi=(0.0, 0.0, 0.0),
-                                    **(trees[a].record() if trees[a] is not None else NO_TREE)))
+                                    **self._tree_fields(trees[a])))
                 else:
                     kind = BY_CLASS[type(s)]
                     self.shape_ids.append((kind.tag, len(rows[kind.table])))
@@ -188,11 +195,29 @@ class DeviceScene:
         self.set_light_map(None)
         d.ambient = wp.vec3(*scene.ambient)
         d.background = wp.vec3(*scene.background)
+        d.fast_off = fast.kernel_bits(self.fast_off)
         self._analytic_bvh(d, rows, [m for m, _ in mats])
         d.n_plights = len(plights)
         d.plights = table(PointLightRec, self._light_buffers(d, rows, plights), dev)
         self.data = d
         self.camera = camera_data(scene)
+
+    def _tree_fields(self, tree: MeshTree | None) -> dict:
+        """An instance record's fields for its asset's tree copy, less the mechanisms switched off
+        (``warprt.fast``): without mesh_trees a ray meets the mesh through Warp's query."""
+        f = dict(NO_TREE) if tree is None else tree.record()
+        off = self.fast_off
+        if "mesh_trees" in off:
+            f.update(tree_nodes=0, tree_kids=0)
+        if "wide_tree" in off:
+            f.update(wide=0)
+        if "mesh_shadow_packets" in off:
+            f.update(shadow_packets=0)
+        if "hit_prefetch" in off:
+            f.update(prefetch=0)
+        if "escaping_faces" in off:
+            f.update(escape=0, frames=0)
+        return f
 
     @property
     def auto_lights(self) -> int:
@@ -266,6 +291,10 @@ class DeviceScene:
                 lo, hi = rows["lo"][i], rows["hi"][i]
                 if not any(np.all(rlo <= hi) and np.all(lo <= rhi) for rlo, rhi in regions):
                     fields = tree.ball_fields()
+                    if "interior_balls" in self.fast_off:  # (warprt.fast)
+                        fields.update(balls=0, n_balls=0)
+                    if "normal_cones" in self.fast_off:
+                        fields.update(cones=0, wide_cones=0)
             for name in ("balls", "n_balls", "cones", "wide_cones"):
                 rows[name][i] = fields[name]
             self._balls_given |= fields["n_balls"] > 0 or fields["cones"] != 0
@@ -281,7 +310,7 @@ class DeviceScene:
         camera or mesh that moves every frame never pays for them."""
         d = self.data
         self._view_renders = accel.BINS_AFTER_RENDERS + 1  # (built: not again until the view changes)
-        if d.n_inst == 0 or not self.device.is_cpu:
+        if d.n_inst == 0 or not self.device.is_cpu or "camera_bins" in self.fast_off:
             return
         cam, rs = self.scene.camera, self.scene.render
         rows = d.insts.numpy()
@@ -300,8 +329,9 @@ class DeviceScene:
                 continue
             # the origin as the kernel computes a camera ray's in object space (trace.to_object)
             origin = np.asarray(cam.eye, np.float32) - r["pos0"]
-            rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_y * cam.aspect, tan_y,
-                              2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
+            with fast.timed("camera_bins"):
+                rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_y * cam.aspect,
+                                  tan_y, 2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
             if rec is None:
                 continue
             budget -= accel.camera_bins_size(rec)
@@ -380,15 +410,17 @@ class DeviceScene:
         d.bvh_root = -1
         d.bvh_nodes = wp.zeros(1, dtype=BvhNode, device=dev)
         d.bvh_prims = wp.zeros(1, dtype=wp.vec2i, device=dev)
-        if len(prims) < ANALYTIC_BVH_MIN:
+        if len(prims) < ANALYTIC_BVH_MIN or "analytic_bvh" in self.fast_off:
             return
         # opaque rectangles in pieces (shapes.rect_pieces): a transparent one stays whole, so that a
         # shadow ray counts its crossing once
-        rect_kind = BY_TAG[KIND_RECT]
+        # (warprt.fast: rect_pieces switched off, every rectangle whole)
+        rect_kind = BY_TAG[KIND_RECT] if "rect_pieces" not in self.fast_off else None
         prims = [(kind, j, box) for kind, j, whole in prims
                  for box in (rect_pieces(rows[kind.table][j]) if kind is rect_kind and not any(
                      materials[rows[kind.table][j]["mat"]].transparency) else [whole])]
-        tree = build_tree(*_padded([b for _, _, b in prims]))
+        with fast.timed("analytic_bvh"):
+            tree = build_tree(*_padded([b for _, _, b in prims]))
         self.analytic_bvh = tree
         d.bvh_root = 0
         d.bvh_nodes = forest_nodes([tree], dev)
@@ -422,7 +454,8 @@ class DeviceScene:
             for rec, light in zip(out, plights):
                 if not isinstance(light, PointLight):
                     continue
-                lb = light_buffer(light.position, lo, hi, ids, accel.LB_RES, room)
+                with fast.timed("light_buffers"):
+                    lb = light_buffer(light.position, lo, hi, ids, accel.LB_RES, room)
                 if lb is not None:
                     c, it, reach = lb
                     rec.update(lb_cell0=sum(map(len, cells)), lb_res=accel.LB_RES, lb_reach=reach)

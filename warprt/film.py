@@ -569,7 +569,7 @@ def pilot_counts(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float)
     ...
 
 
-def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
+def adaptive_counts(film: Film, n0: int, spp: int, native: bool = True) -> np.ndarray:
     """Per-pixel sample counts averaging ``spp``, from a film holding the first ``n0`` samples of
     every pixel (the pilot, which each count includes).
 
@@ -590,9 +590,10 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     colour the budget is shared in proportion to those deviations (Neyman allocation: the summed
     variance Σ σ²/N of the pixel means is least for a given total), with every pixel at least
     max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp; the normaliser of a
-    colour is itself a function of the other colour's samples."""
+    colour is itself a function of the other colour's samples. On the CPU they come from native
+    code (``Film.pilot_counts``) unless ``native`` is False (``warprt.fast``: native_counts)."""
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
-    if film.data.accum.device.is_cpu:  # (the same numbers by native code, see pilot_counts)
+    if native and film.data.accum.device.is_cpu:  # (the same numbers by native code, see pilot_counts)
         return film.pilot_counts(n0, spp, n_min, ADAPTIVE_MAX_FACTOR * spp)
     return _counts(film, n0, spp, n_min)
 

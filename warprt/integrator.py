@@ -38,6 +38,9 @@ from . import _warp, kernels
 from ._warp import build_once
 from .aov import AovData, make_aov_sample
 from .camera import camera_frame, camera_packet, camera_ray, lens_packet
+from .fast import (
+    FAST_CAMERA_PACKET_RAYS, FAST_COLUMN_BLOCKS, FAST_MESH_PACKETS, FAST_SHADING_PACKETS, FAST_SOBOL_PACKETS,
+)
 from .film import FilmData, claim_block, luminance, packet_samples, sanitize
 from .geometry import spawn_origin
 from .lights import LightPacket, ShadePacket, make_lights, map_samples
@@ -290,9 +293,10 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                 if wp.static(F.meshes):
                     mesh_packed = meshes and lanes >= MESH_PACKET_MIN
                     packed = packed or mesh_packed
+                    mesh_packed = mesh_packed and (scene.fast_off & FAST_MESH_PACKETS) == 0  # (warprt.fast)
                 # with Sobol points, a packet's camera samples drawn together (sampling.sobol_packet;
                 # lanes that go alone draw theirs alone)
-                sobol = packed and params.sampler == SAMPLER_SOBOL
+                sobol = packed and params.sampler == SAMPLER_SOBOL and (scene.fast_off & FAST_SOBOL_PACKETS) == 0
                 # each lane's pixel key and sample index, for the Sobol points and the packet's shading
                 lane_keys = sobol
                 if wp.static(shade_packets):
@@ -325,7 +329,8 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                 oxp = PacketF()
                 oyp = PacketF()
                 ozp = PacketF()
-                if sobol and (pinhole or lensed):
+                cam_packet = sobol and (pinhole or lensed) and (scene.fast_off & FAST_CAMERA_PACKET_RAYS) == 0
+                if cam_packet:
                     fxp = PacketF()
                     fyp = PacketF()
                     for k in range(lanes):
@@ -355,7 +360,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     co = frame.eye
                     cd = wp.vec3(dxp[k], dyp[k], dzp[k])
                     ct = cam.t_open
-                    if sobol and (pinhole or lensed):
+                    if cam_packet:
                         if lensed:
                             co = wp.vec3(oxp[k], oyp[k], ozp[k])
                     else:
@@ -403,7 +408,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
             lb = PacketF()
             l_rays = PacketI()
             if wp.static(shade_packets):
-                shaded = packed
+                shaded = packed and (scene.fast_off & FAST_SHADING_PACKETS) == 0  # (warprt.fast)
                 if shaded:
                     sp_.key = keys
                     sp_.sample = idx
@@ -746,7 +751,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         if wp.static(F.meshes):
             n_pix = run
             sh = int(0)
-            if run >= cam.width:
+            if run >= cam.width and (scene.fast_off & FAST_COLUMN_BLOCKS) == 0:  # (warprt.fast: column_blocks)
                 if calls == 4:
                     sh = 2
                 calls = calls >> sh

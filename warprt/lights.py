@@ -16,6 +16,7 @@ import warp as wp
 
 from ._warp import build_once
 from .accel import PACKET, PacketF, PacketI, PacketU, lane, lane_add, lane_addi, lane_i
+from .fast import FAST_SOBOL_PACKETS
 from .geometry import max_abs, shadow_rays_packet, spawn_offset
 from .records import FALLOFF_DIRECTIONAL, KIND_RECT, Features, RenderParams, SceneData
 from .sampling import (SAMPLER_SOBOL, SplitDraws, hash2, is_rectangle_edges, is_split_order, light_sample_2d,
@@ -525,13 +526,15 @@ def make_lights(F: Features) -> SimpleNamespace:
                         ag[k] = 0.0
                         ab[k] = 0.0
                     split = is_split_order(params.sampler, ns)
+                    # (with sobol_packets switched off, warprt.fast, each lane draws its points alone)
+                    together = (scene.fast_off & FAST_SOBOL_PACKETS) == 0
                     draws = SplitDraws()
-                    if split:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
+                    if split and together:  # lane k's s-th point in the light's quadrant s % 4 (sobol_split_index)
                         sobol_split_setup(sp.key, sp.sample, ns, dim, draws)
                     for s in range(ns):
-                        if split:
+                        if split and together:
                             sobol_split_draw(draws, ns, s, ux, uy)
-                        elif params.sampler == SAMPLER_SOBOL:
+                        elif params.sampler == SAMPLER_SOBOL and together:
                             idx = PacketI()
                             for k in range(lanes):
                                 idx[k] = sp.sample[k] * ns + s

@@ -190,6 +190,7 @@ class InstRec:
     wide_cones: wp.uint64  # the same in the wide tree's layout (0 with cones 0)
     shadow_packets: int  # 1: a camera packet's shadow rays go through the tree together (accel.SHADOW_PACKET_TRIANGLES)
     bins: wp.uint64  # the camera's screen-space bins of the asset's triangles (accel.camera_bins; 0: none)
+    prefetch: int  # 1: packets prefetch their hits' corners (warprt.fast: hit_prefetch)
 
 
 @wp.struct
@@ -264,6 +265,7 @@ class SceneData:
     split_tx: int  # tiles across the image
     ambient: wp.vec3
     background: wp.vec3
+    fast_off: int  # the kernel-stage speed mechanisms switched off (warprt.fast's FAST_* bits; 0: all on)
 
 
 @wp.struct

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from . import _warp, kernels, splitting
+from . import _warp, fast, kernels, splitting
 from .aov import AovTarget, check_aov_names, no_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
@@ -144,13 +144,13 @@ def pixels_per_thread(device, width: int) -> int:
     return width if device.is_cpu else 1
 
 
-def _slices(width: int, height: int, count: int) -> list[tuple[int, int, int, int]]:
+def _slices(width: int, height: int, count: int, most: int = SLICE_BLOCK) -> list[tuple[int, int, int, int]]:
     """(first row, stride, block, pixels) of each of ``count`` interleaved slices of the frame:
-    slice j holds blocks j, j + count, ... of ``block`` consecutive rows (SLICE_BLOCK, fewer
+    slice j holds blocks j, j + count, ... of ``block`` consecutive rows (``most``, fewer
     where the frame has too few rows for a block per slice), its first rows ``stride`` rows apart
     (the render kernels' ``row0``, ``stride``, ``block``)."""
     count = max(1, min(count, height))
-    block = max(1, min(SLICE_BLOCK, height // count))
+    block = max(1, min(most, height // count))
     n_blocks = -(-height // block)
     count = min(count, n_blocks)
     out = []
@@ -244,7 +244,10 @@ class Renderer:
     a more general kernel; by default the kernel is specialised to the scene. ``packets``: camera
     rays 8 at a time (the CPU's default) or one by one (CUDA's), see
     :func:`warprt.integrator.packets_for`; the images are the same bit for bit, only the speed
-    differs.
+    differs. ``fast_off``: names of CPU speed mechanisms to switch off (``warprt.fast``), besides
+    those the environment (``WARPRT_FAST_OFF``) and any enclosing ``warprt.fast.disabled`` switch
+    off; the renderer keeps the set it starts with (``fast_off``). The images are the same bit for
+    bit.
 
     ``background_compile`` (default: on, unless ``WARPRT_BACKGROUND_COMPILE=0``): when the
     scene's kernel is not in Warp's cache yet but the general kernel (``Features.full()``) is, a
@@ -256,7 +259,7 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, device: str | None = None, features: Features | None = None,
-                 packets: bool | None = None, background_compile: bool | None = None):
+                 packets: bool | None = None, background_compile: bool | None = None, fast_off=()):
         if not isinstance(scene, Scene):
             raise RenderError(f"render() needs a warprt.Scene, got {type(scene).__name__}")
         if packets is not None and not isinstance(packets, bool):
@@ -267,11 +270,15 @@ class Renderer:
             raise RenderError(f"device must be a name such as 'cpu' or 'cuda:0', got {device!r:.60}")
         if background_compile is not None and not isinstance(background_compile, bool):
             raise RenderError(f"background_compile must be True, False or None, got {background_compile!r:.60}")
+        #: the speed mechanisms switched off (warprt.fast), with those that run inside them
+        self.fast_off: frozenset = fast.current(fast_off)
         self.device = _warp.resolve_device(device)
         #: camera rays in packets (the CPU's default) or one by one (CUDA's): the same images
         self.packets = packets_for(self.device) if packets is None else packets
+        if packets is None and "camera_packets" in self.fast_off:  # (warprt.fast: the one-by-one kernel)
+            self.packets = False
         self.scene = scene
-        self.built = DeviceScene(scene, self.device)
+        self.built = DeviceScene(scene, self.device, fast_off=self.fast_off)
         self.built.refresh_bins()  # (the camera's bins of large meshes, built with the scene)
         self.features = self.built.features if features is None else self.built.features.union(features)
         self.kernel = kernels_for(self.features, self.packets).render  # the scene's own kernel
@@ -298,7 +305,7 @@ class Renderer:
         while the new scene needs no feature it lacks (else the wider kernel is used)."""
         if not isinstance(scene, Scene):
             raise RenderError(f"update() needs a warprt.Scene, got {type(scene).__name__}")
-        self.built = DeviceScene(scene, self.device, assets=self.built.assets)
+        self.built = DeviceScene(scene, self.device, assets=self.built.assets, fast_off=self.fast_off)
         self.scene = scene
         self._light_samples = None
         self._light_map = None
@@ -599,7 +606,7 @@ class Renderer:
                         n0 = max(1, int(spp) // ADAPTIVE_PILOT_FRACTION)  # 2 spp: one sample, then counts
                         done, interrupted, _ = self._passes(film, params, 0, n0, ctrl_c, bar, None, None, **run)
                         if not interrupted:
-                            counts = adaptive_counts(film, done, int(spp))
+                            counts = adaptive_counts(film, done, int(spp), native="native_counts" not in self.fast_off)
                             film.set_counts(counts)
                             planned = int(counts.max())
                             if bar is not None:
@@ -644,11 +651,12 @@ class Renderer:
         """One recorded launch of the running kernel per worker (or slice), replayed every pass
         with the pass's sample range; kept for the next call while kernel, scene (its record is
         made once, with it), camera and film are the same objects and slices and workers the same
-        numbers, with only the render's parameters and AOV buffers set again (recording packs every argument, the
-        scene's record among them: about 0.3 ms for 8 launches)."""
+        numbers, with only the render's parameters and AOV buffers set again (recording packs every
+        argument, the scene's record among them: about 0.3 ms for 8 launches)."""
         cam = self.scene.camera
         dev = self.device
         kernel = self._running
+        rows_per_block = SLICE_BLOCK if "row_blocks" not in self.fast_off else 1  # (warprt.fast)
         key = (kernel, self.built, self.built.camera, film, n_slices, workers, run)
         kept = self._launches
         if kept is not None and all(a is b for a, b in zip(kept[0][:4], key[:4])) and kept[0][4:] == key[4:]:
@@ -660,10 +668,10 @@ class Renderer:
         if claims:
             # one launch per worker, each claiming blocks of rows until none is left (stride 0):
             # as many threads as blocks, in case one launch takes them all
-            n_blocks = -(-cam.height // SLICE_BLOCK)
+            n_blocks = -(-cam.height // rows_per_block)
             launches = [wp.launch(kernel, dim=n_blocks, device=dev, record_cmd=True,
                                   inputs=[self.built.data, self.built.camera, params, 0, 0, 0, 0, film.data,
-                                          cam.width, SLICE_BLOCK, aov])
+                                          cam.width, rows_per_block, aov])
                         for _ in range(workers)]
         else:
             # (with meshes a CPU thread takes a block of rows, else ``run`` pixels of a row:
@@ -674,7 +682,8 @@ class Renderer:
                                   inputs=[self.built.data, self.built.camera, params, first, stride, 0, 0,
                                           film.data, run, block, aov])
                         for first, stride, block, count in _slices(
-                            cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices)]
+                            cam.width, cam.height, SLICES_PER_WORKER * workers if n_slices is None else n_slices,
+                            rows_per_block)]
         if film is self._film:  # (a film of a render in another thread is not kept)
             self._launches = (key, launches)
         return launches
@@ -689,10 +698,11 @@ class Renderer:
         these workers and slices and, with per-pixel counts, from how many pixels still sample at
         each index. ``aov``: the render's ``aov.AovData``."""
         dev = self.device
-        run = pixels_per_thread(dev, self.scene.camera.width)
+        run = pixels_per_thread(dev, self.scene.camera.width) if "row_threads" not in self.fast_off else 1
         # by default (n_slices None: the CPU) each worker's launch claims blocks of rows; threads
         # of fewer pixels than a row (tests that render pixel by pixel) take fixed slices instead
         claims = n_slices is None and run >= self.scene.camera.width
+        claims = claims and "row_claims" not in self.fast_off  # (warprt.fast: fixed slices instead)
         launches = self._launches_for(film, params, aov, n_slices, workers, run, claims)
         pool = self._pool.get(workers)
 
