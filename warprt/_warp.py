@@ -37,6 +37,8 @@ from typing import Callable, TypeVar
 
 import warp as wp
 
+from . import kernels
+
 T = TypeVar("T")
 
 #: options of every Warp module warprt compiles (see the module docstring)
@@ -208,14 +210,6 @@ def _move_aside(folder: str) -> str:
 _warp_load = None  # Warp's own Module.load, wrapped by _load
 
 
-def _entry(module, device, block_dim):
-    """(folder, binary name, meta name) of ``module``'s cache entry for ``device``."""
-    dev = wp.get_device(device)
-    active = block_dim if block_dim is not None else module.options["block_dim"]
-    folder = os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier(active))
-    return folder, module._get_compile_output_name(dev, block_dim=active), module._get_meta_name(block_dim=active)
-
-
 def _set_aside(folder: str, damage: str) -> None:
     import warnings
 
@@ -239,15 +233,13 @@ def _load(self, device, block_dim=None, binary_path=None, output_arch=None, meta
             return _warp_load(self, device, block_dim)
         # about to load from the cache (or compile): look at the entry first, so that a damaged one
         # is compiled again rather than handed to the native loader
-        folder, binary, meta = _entry(self, dev, block_dim)
+        folder, binary, meta = kernels.cache_entry(self, dev, block_dim)
         damage = cache_damage(folder, binary, meta)
         if damage is not None:
             _set_aside(folder, damage)
         compiles = not (os.path.isfile(os.path.join(folder, binary)) and os.path.isfile(os.path.join(folder, meta)))
         try:
             if compiles:
-                from . import kernels
-
                 # announced after a second, and compiled once however many threads ask
                 with kernels.compiling(self, dev, block_dim):
                     if dev.is_cpu and _interruptible():

@@ -190,10 +190,9 @@ def _block_dim(module, device) -> int:
 
 
 def _binary_cached(module, device, block_dim) -> bool:
-    from ._warp import _entry
 
     try:
-        folder, binary, meta = _entry(module, device, block_dim)
+        folder, binary, meta = cache_entry(module, device, block_dim)
         return os.path.exists(os.path.join(folder, binary)) and os.path.exists(os.path.join(folder, meta))
     except Exception:  # a Warp without these internals: say "not cached", which only costs a compile
         return False
@@ -283,3 +282,11 @@ class Background:
 
     def wait(self, timeout: float | None = None) -> bool:
         return self._done.wait(timeout)
+
+
+def cache_entry(module, device, block_dim):
+    """(folder, binary name, meta name) of ``module``'s cache entry for ``device``."""
+    dev = wp.get_device(device)
+    active = block_dim if block_dim is not None else module.options["block_dim"]
+    folder = os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier(active))
+    return folder, module._get_compile_output_name(dev, block_dim=active), module._get_meta_name(block_dim=active)
