@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export WARP_CACHE_PATH := $(CURDIR)/.cache/warp
 
-.PHONY: render test mutate fuzz-signals bench bench-corpus bench-peers bench-newton install clean
+.PHONY: render test mutate fuzz-signals bench bench-corpus bench-peers bench-newton bench-docs install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -58,6 +58,11 @@ bench-peers: $(STAMP)
 # warprt against Newton's SensorTiledCamera on Newton's kind of scene (the optional `newton` extra)
 bench-newton: $(STAMP)
 	$(PY) -m benchmarks.newton_bench $(NEWTON_ARGS)
+
+# docs/benchmarks.md's tables again from the results committed under docs/benchmarks/ (runs no
+# benchmark; each benchmark also does this after a full run)
+bench-docs: $(STAMP)
+	$(PY) -m benchmarks.docs
 
 clean:
 	rm -rf out .cache .pytest_cache

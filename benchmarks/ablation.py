@@ -25,7 +25,10 @@ that of the all-on renderer's build.
 ``--config`` is a sampler with options, as in benchmarks.peers: ``sobol+split+adaptive`` (the
 default: Sobol points, area lights with ``samples = "auto"``, adaptive sampling) or e.g.
 ``stratified`` (today's defaults), or ``defaults`` (the scene's own settings). Writes
-out/ablation/ablation.json (``--out``).
+out/ablation/ablation.json and ablation.md (``--out``). A run over every peer scene and mechanism
+into that folder (no ``--scenes``, ``--only``, ``--split`` or ``--out``) whose images all stayed
+the same also copies ablation.json to docs/benchmarks/ and re-renders the ``ablation`` table in
+docs/benchmarks.md from it (``benchmarks.docs``; ``--no-docs`` not to).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ import json
 import math
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -48,6 +52,7 @@ os.environ.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
 import numpy as np  # noqa: E402
 
 import warprt  # noqa: E402
+from benchmarks import docs  # noqa: E402
 from warprt import fast  # noqa: E402
 from warprt.fast.usage import in_use  # noqa: E402
 
@@ -347,7 +352,8 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5, help="timed renders per renderer and worker count")
     parser.add_argument("--workers", default="1,2", help="worker counts (default 1,2)")
     parser.add_argument("--only", default="", help="comma-separated mechanisms (default: every one a scene uses)")
-    parser.add_argument("--out", default=str(ROOT / "out" / "ablation"), help="output folder")
+    parser.add_argument("--out", default=None, help="output folder (default out/ablation)")
+    parser.add_argument("--no-docs", action="store_true", help="leave docs/benchmarks.md alone")
     parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.serve:
@@ -355,7 +361,8 @@ def main(argv=None) -> int:
     args.workers = [int(w) for w in args.workers.split(",")]
     args.only = set(fast.check(args.only.split(","), "--only")) if args.only else set()
     specs = scene_specs(args)
-    out = Path(args.out)
+    whole = not (args.scenes or args.only or args.split or args.out)
+    out = Path(args.out or ROOT / "out" / "ablation")
     out.mkdir(parents=True, exist_ok=True)
 
     def log(msg: str) -> None:
@@ -380,6 +387,10 @@ def main(argv=None) -> int:
     if bad:
         log(f"\nimages that changed (a bug): {bad}")
         return 1
+    if whole and not args.no_docs:
+        shutil.copyfile(out / "ablation.json", docs.DATA / "ablation.json")
+        changed = docs.update(["ablation", "machine"])
+        log(f"docs/benchmarks/ablation.json; docs/benchmarks.md: {', '.join(changed) or 'no'} tables changed")
     return 0
 
 

@@ -14,6 +14,8 @@ with camera rays in packets or one by one (default: the device's choice, one by 
 
 Needs a CUDA device (it prints one line and exits 2 without one); it never runs in CI. Scenes can
 run as separate processes at once (one ``--scenes`` each) so that their CUDA compiles overlap.
+``--json docs/benchmarks/gpu.json`` also re-renders the ``gpu`` table in docs/benchmarks.md from
+that file (``benchmarks.docs``).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import numpy as np  # noqa: E402
 import warp as wp  # noqa: E402
 
 import warprt  # noqa: E402
+from benchmarks import docs  # noqa: E402
 from benchmarks.peers import SCENES, build_scene  # noqa: E402
 from warprt.testing import relative_mse  # noqa: E402
 
@@ -126,6 +129,9 @@ def main(argv=None) -> int:
         tmp = args.json.with_suffix(".tmp")
         tmp.write_text(json.dumps(result, indent=1))
         tmp.replace(args.json)
+        if args.json.resolve() == (docs.DATA / "gpu.json").resolve():
+            changed = docs.update(["gpu", "machine"])
+            print(f"docs/benchmarks.md: {', '.join(changed) or 'no'} tables changed")
     return 0
 
 

@@ -25,7 +25,9 @@ agreement where the two models coincide (hit mask, depth, shape index, lit colou
 its ambient off on lit pixels); and the per-step cost of updating poses from ``state.body_q`` on
 the device (with and without the device check of ``body_q``, ``check_inputs``), with the batch's
 counters (rebuilds, compiles, host copies) over the steps.
-Figures go to docs/benchmarks/newton.json.
+Figures go to docs/benchmarks/newton.json (``--quick``: nowhere); a run written there also
+re-renders the ``newton`` tables in docs/benchmarks.md from it (``benchmarks.docs``; ``--no-docs``
+not to).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ os.environ.setdefault("WARP_CACHE_PATH", os.path.join(ROOT, ".cache", "warp"))
 import warp as wp  # noqa: E402
 
 import warprt  # noqa: E402
+from benchmarks import docs  # noqa: E402
 
 FOV = 45.0
 DEPTH = ("depth",)
@@ -218,6 +221,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--quick", action="store_true", help="small sizes (a smoke test of the harness)")
     ap.add_argument("--out", default=os.path.join(ROOT, "docs", "benchmarks", "newton.json"))
+    ap.add_argument("--no-docs", action="store_true", help="leave docs/benchmarks.md alone")
     args = ap.parse_args(argv)
     try:
         import newton  # noqa: F401
@@ -296,6 +300,9 @@ def main(argv=None) -> int:
         with open(args.out, "w") as f:
             json.dump(results, f, indent=1)
         print(f"wrote {os.path.relpath(args.out, ROOT)}")
+        if not args.no_docs and os.path.realpath(args.out) == os.path.realpath(docs.DATA / "newton.json"):
+            changed = docs.update(["newton", "machine"])
+            print(f"docs/benchmarks.md: {', '.join(changed) or 'no'} tables changed")
     return 0
 
 

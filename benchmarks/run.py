@@ -6,9 +6,12 @@
     python -m benchmarks.run --only specialisation --merge   # re-measure one section in place
     python -m benchmarks.run --only checks --merge           # the device-input checks' cost
 
-Writes under docs/benchmarks/ (or --out): results.json, results.csv (one row per measurement),
-and charts (PNG, needs matplotlib: the ``charts`` extra). Timings are wall-clock medians on the
-machine it runs on; ratios are taken within one run, since a shared machine is noisy.
+Writes under docs/benchmarks/ (``--quick``: out/bench/; or --out): results.json, results.csv (one
+row per measurement), and charts (PNG, needs matplotlib: the ``charts`` extra); a run into
+docs/benchmarks/ then re-renders this benchmark's tables in docs/benchmarks.md from them
+(``benchmarks.docs``; ``--no-docs`` not to, ``python -m benchmarks.docs`` to do it again from the
+committed files). Timings are wall-clock medians on the machine it runs on; ratios are taken
+within one run, since a shared machine is noisy.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ os.environ.setdefault("WARP_CACHE_PATH", str(ROOT / ".cache" / "warp"))
 import numpy as np  # noqa: E402
 
 import warprt  # noqa: E402
+from benchmarks import docs  # noqa: E402
 from warprt import Features  # noqa: E402
 from warprt.render import default_workers  # noqa: E402
 
@@ -537,14 +541,15 @@ STEP_ROWS = {"compile": ("compile_cold", "compile_cached"), "throughput": ("thro
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default=str(ROOT / "docs" / "benchmarks"))
-    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--out", default=None, help="output folder (default docs/benchmarks; with --quick out/bench)")
+    parser.add_argument("--quick", action="store_true", help="smaller sizes, for a smoke run")
+    parser.add_argument("--no-docs", action="store_true", help="leave docs/benchmarks.md alone")
     parser.add_argument("--only", default="compile,throughput,specialisation,aovs,growth,error,checks")
     parser.add_argument("--merge", action="store_true",
                         help="update only the measured sections of an existing results.json / results.csv "
                              "(with --only), keeping the others")
     args = parser.parse_args(argv)
-    out = Path(args.out)
+    out = Path(args.out or ROOT / ("out/bench" if args.quick else "docs/benchmarks"))
     out.mkdir(parents=True, exist_ok=True)
     only = set(args.only.split(","))
     rows: list[dict] = []
@@ -591,6 +596,9 @@ def main(argv=None) -> int:
         w.writeheader()
         w.writerows(rows)
     print(f"wrote {out / 'results.json'}, {out / 'results.csv'} and {len(results['charts'])} charts")
+    if not (args.quick or args.no_docs) and out.resolve() == docs.DATA.resolve():
+        changed = docs.update(docs.RUN_BLOCKS)
+        print(f"docs/benchmarks.md: {', '.join(changed) or 'no'} tables changed")
     return 0
 
 
