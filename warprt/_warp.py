@@ -1,7 +1,7 @@
 """Import and initialise Warp once, with warprt's settings.
 
 The kernel cache goes where ``WARP_CACHE_PATH`` (or ``WARPRT_CACHE_DIR``) says; the Makefile points
-it inside the repository (``.cache/warp``) so a fresh clone compiles into a folder it owns. A
+it inside the repository (``.cache/warp``) so a clone compiles into a folder it owns. A
 cache folder that cannot be created or written to is a :class:`warprt.RenderError` naming it (the
 CLI prints it in one line and exits 2), raised before anything is built or compiled.
 Backward (adjoint) code is never generated for warprt's own kernels (each is declared with

@@ -9,8 +9,8 @@ Why not ``wp.Bvh``: its ray query visits children in a fixed order, whatever the
 so a closest-hit search keeps testing boxes behind the hit it already has, and its slab test
 uses NaN-aware min/max (a compare and a blend each on the CPU). Here a ray takes the nearer child
 first, keeps the farther one on a stack with its entry distance and drops it once a hit is
-nearer, and the slab test is plain selects on a direction with no zero components. On the
-edge-antialiasing peer scene (600 boxes) ``wp.Bvh`` queries were 77% of the render time.
+nearer, and the slab test is plain selects on a direction with no zero components. Both costs
+grow with the boxes a ray crosses, so they matter most in scenes of many small shapes.
 
 Node order is breadth first: a node's children always come after it, so a refit walks the nodes
 backwards. A forest (one tree per world of a batch) is the trees one after another, every tree
@@ -35,7 +35,7 @@ MEDIAN_FROM_LEVEL = 40  # deeper levels split at the median: depth stays below 4
 STACK = 72  # traversal stack entries: tree depth + 1 at most (a node pops one entry, pushes two)
 MAX_DEPTH = STACK - 2
 # a traversal's stack: node or primitive refs and their entry distances (fixed-length vectors are
-# registers and plain offsets; a local wp.zeros array paid ~20% of a query in index arithmetic)
+# registers and plain offsets; a local wp.zeros array pays index arithmetic on every access)
 StackRefs = wp.types.vector(length=STACK, dtype=wp.int32)
 StackDist = wp.types.vector(length=STACK, dtype=wp.float32)
 
@@ -117,8 +117,8 @@ def lane_addi(v: wp.ref[PacketI], k: int, x: int):
 # A lane mask (i8: -1 or 0 a lane) as the bits of an unsigned (lane l: bit l), through a vector of
 # bools, which is one mask-register move on AVX-512; ``__builtin_reduce_or(h & {1, 2, 4, ...})``
 # compiled to a masked load and three shuffle-and-or steps, on the path from a node's box tests
-# to the branch that picks its next node (the shadow packets' traversal of (d)'s rays took 0.93x
-# the time with the bits: docs/benchmarks.md, levers). Spliced into the snippets that need it.
+# to the branch that picks its next node, which a packet's traversal takes at every node.
+# Spliced into the snippets that need it.
 _BITS8 = r"""
 auto bits8 = [](i8 h) -> unsigned {
     typedef bool b8 __attribute__((ext_vector_type(8)));
@@ -487,21 +487,23 @@ def refit_kernel(nodes: wp.array(dtype=BvhNode), lowers: wp.array(dtype=wp.vec3)
 # Warp's), and on the CPU a copy of that tree in the layout above: every node holds both
 # children's boxes, and the triangles' corners are stored in leaf order, so a node costs one load
 # and a triangle no index lookups. ``mesh_tree_kernel`` writes the copy from Warp's nodes (O(n),
-# ~8 ms for 328k triangles) after every build or refit. The traversal is C++ (``func_native``):
-# written in Warp's Python language the same algorithm ran at 1.06-1.10x the time of Warp's own
-# query, in C++ at 0.77-0.80x on peer scene (d)'s rays (docs/benchmarks.md, levers). A triangle
+# a few ms for a mesh of 300k triangles) after every build or refit. The traversal is C++
+# (``func_native``): written in Warp's Python language the same algorithm was slower than Warp's
+# own query, and the C++ form is faster than it (``mesh_trees`` in ``warprt.fast``). A triangle
 # is Woop, Benthin and Wald's watertight test computed as Warp's ``intersect_ray_tri_woop``
 # computes it (FMA-compensated edge functions, again in double where one is zero, t, u and v from
 # 1/det), with the ray's shear set up once per ray: each triangle's t, u and v are Warp's bit for
 # bit. The boxes' slab test takes a margin of 4e-7 (Warp's
 # none). The C++ is sensitive to its shape: variants that look equivalent (a loop over a leaf's
-# triangles, a ``while (node >= 0)`` loop, the leaf test called from a third place) ran at
-# 1.03-1.06x Warp's time, so changes here want the A/B of the levers table. On CUDA the snippet
-# calls ``wp::mesh_query_ray`` itself (no copy is made there), as it does for a tree it cannot
-# take (a mesh of one triangle, a leaf of several) and for a ray whose stack would pass 80 entries.
+# triangles, a ``while (node >= 0)`` loop, the leaf test called from a third place) were slower
+# than Warp's own query, so time a change here, before and after it: ``python -m
+# benchmarks.ablation --scenes d --only mesh_trees`` (its ratio is Warp's query over this one).
+# On CUDA the snippet calls ``wp::mesh_query_ray`` itself (no copy is made there), as it does for
+# a tree it cannot take (a mesh of one triangle, a leaf of several) and for a ray whose stack would
+# pass 80 entries.
 # Every traversal reads a node's children first and prefetches their boxes and children (or a leaf
-# child's triangle) while it tests the node's own boxes: on the 328k-triangle mesh, whose tree
-# outgrows the caches, a node's first load was the traversal's hottest instruction (0.92x (d)).
+# child's triangle) while it tests the node's own boxes: on a large mesh, whose tree outgrows the
+# caches, a node's first load is otherwise the traversal's hottest instruction (``node_prefetch``).
 
 _TREE_COPY = r"""
 const wp::Mesh mesh = wp::mesh_get(mid);
@@ -567,9 +569,9 @@ def mesh_tree_kernel(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp
 # packet tests the same boxes, a level of nodes at a time), gathered by ``wide_boxes_kernel`` after
 # every build and refit (``MeshTree.refresh``); a mesh's normal cones, where it has them, are laid
 # out the same way (``MeshTree.wide_rows``: 16 floats a node, rows of axis x, y, z and threshold).
-# A packet visits half the nodes of the binary tree: on (d)'s camera packets through the
-# 328k-triangle torus 16 visits a packet against 32, at 0.78x the time (docs/benchmarks.md,
-# levers); the collapse takes 0.05 s on the host for those 328k triangles.
+# A packet visits about half the nodes it would visit in the binary tree, each visit testing 4
+# boxes for its lanes at once (``wide_tree`` in ``warprt.fast``); the collapse takes a fraction of
+# a second on the host for a mesh of 300k triangles.
 WIDE = 4
 WIDE_EMPTY = 0x7FFFFFFF
 WIDE_STACK = 96  # a packet's stacked nodes (3 pushed a visit at most; past them the lanes go alone)
@@ -617,8 +619,8 @@ def wide_boxes_kernel(boxes: wp.array(dtype=wp.float32), src: wp.array(dtype=wp.
                       wide: wp.array(dtype=wp.float32)):
     """Child slot i of the wide tree (node i // 4, slot i % 4): its box from the binary copy's
     child src[i] (``widen``; 6 floats each in ``boxes``) into the node's rows of 4 (none for an
-    empty slot). Run after every build and refit: 11 ms on the host for 328k triangles (numpy's
-    gather: 47 ms)."""
+    empty slot). Run after every build and refit, so a kernel rather than numpy's gather, which
+    takes several times as long."""
     i = wp.tid()
     s = src[i]
     if s < 0:
@@ -1010,8 +1012,8 @@ def mesh_tree_ray(mid: wp.uint64, nodes: wp.uint64, kids: wp.uint64, tris: wp.ui
 # ``trace.leaves_face``, computed here from the leaf-ordered corners exactly as there: Warp's
 # normalize(cross(q - p, r - p)) and the same products). The answer is the one the nearest-hit
 # loop gives (an occluder exists or not), without ordering the hits or stepping over the face the
-# ray leaves: 0.89x the time of ``mesh_tree_ray`` with that check on scene (d)'s shadow rays, a
-# third of which are blocked (docs/benchmarks.md, levers). With a closed mesh's normal cones
+# ray leaves, so it costs less than ``mesh_tree_ray`` with that check, and the more of the shadow
+# rays are blocked the more it saves. With a closed mesh's normal cones
 # (``normal_cones``, below; 0: none) it skips the children whose every triangle the ray leaves.
 _TREE_OCCLUDED = _splice(r"""
 #if !defined(__CUDA_ARCH__)
@@ -1080,11 +1082,11 @@ def mesh_tree_occluded(nodes: wp.uint64, kids: wp.uint64, tris: wp.uint64, root:
 # meets a child (and, with normal cones, may cross a triangle of it on the way in), each leaf's
 # triangle tested for those lanes with each lane's shear (``_WOOP``) and ``leaves_face``'s check,
 # and a lane retired at its first occluder. Every lane's answer is the one it gets alone (any-hit:
-# an occluder exists or not, in whatever order the leaves are met). On (d)'s 328k-triangle torus
-# it took 0.83x the time of one ray at a time, 0.75x with the lanes' light points in one quarter
-# of the light (``sampling.sobol_split_index``); with those, (e)'s 1.3k- and 4k-triangle meshes
-# gain a little too (0.95-0.98x a sample with 4 light samples, 1.00x with 1 or 2:
-# docs/benchmarks.md, levers). On the smallest meshes, whose traversals are a few nodes, the
+# an occluder exists or not, in whatever order the leaves are met). The lanes share each node's
+# loads, and share more of the nodes with the lanes' light points in one quarter of the light
+# (``sampling.sobol_split_index``), where their rays diverge less (``mesh_shadow_packets`` in
+# ``warprt.fast``; ``python -m benchmarks.ablation`` times it switched off). On the smallest
+# meshes, whose traversals are a few nodes, the
 # lanes' set-up would cost more than it saves, so the renderer takes it for meshes of
 # SHADOW_PACKET_TRIANGLES or more (``MeshTree.record``'s shadow_packets).
 SHADOW_PACKET_TRIANGLES = 1024
@@ -1352,7 +1354,7 @@ def mesh_balls_hit(balls: wp.uint64, n: int, o: wp.vec3, d: wp.vec3, t_max: floa
 # (unit axis a, s) holds the outward normals of the child's subtree (each within arcsin(s -
 # CONE_MARGIN) of a), and a ray whose unit direction has u.a >= s skips the child. A ray leaving a
 # mesh's own surface skips the patch around its origin (all faces it leaves), where its traversal
-# otherwise goes deepest (docs/benchmarks.md, levers). The cones bound each child's normals from
+# otherwise goes deepest. The cones bound each child's normals from
 # its own children's cones (axis: the normalised sum of the subtree's unit normals), in float64;
 # the margin covers the float32 axis, s and ray direction. A mesh qualifies when every edge is
 # shared by exactly two triangles that run it in opposite directions (closed and consistently
@@ -1492,11 +1494,10 @@ def escape_sides(points: np.ndarray, faces: np.ndarray, edges: tuple | None = No
 # in it from a point of f to a point of another triangle. A ray whose elevation passes its
 # sector's bound meets none: it skips the instance (``lights.area_lights_packet``'s and
 # ``point_lights_packet``'s ``skip`` and ``face``, ``trace.occluded_packet``). Escaping faces
-# (above) are horizons of zero. The bounds cost about 17 us a face (2 cores), so meshes of more
-# than HORIZON_MAX_TRIANGLES keep the escaping faces alone: on peer scene (d)'s 328k-triangle
-# torus the bounds pass 69% of the light-facing rays, which saved 8-18% of a render before the
-# shadow packets and normal cones and 0.97-1.02x since, for 11-14 s of build (docs/benchmarks.md,
-# levers).
+# (above) are horizons of zero. The bounds cost tens of microseconds a face to find, so meshes of
+# more than HORIZON_MAX_TRIANGLES keep the escaping faces alone: there the build takes seconds,
+# and the shadow packets and normal cones already skip most of the work the horizons would, so
+# they save no more than a render's noise (``escape_horizons`` in ``warprt.fast``).
 #
 # The bounds (``horizon_kernel``, C++ in double over the CPU tree copy, once per asset): for a
 # part of the mesh (a node's box, or a triangle), the top of its box along A over its distance
@@ -1954,7 +1955,8 @@ def horizon_open(escape: wp.uint64, face: int, side: int) -> int:
 # ``mesh_tree_ray`` alone. On a mesh of HIT_PREFETCH_TRIANGLES or more, whose corners are seldom
 # in the caches, it prefetches each lane's hit's corners, which the caller then reads through the
 # mesh's indices (``trace.leaves_face``, ``mesh_details``): the lanes' misses overlap instead of
-# coming one lane at a time ((d) 0.96-0.98x a render; smaller meshes gain nothing).
+# coming one lane at a time (smaller meshes, whose corners stay in the caches, gain nothing:
+# ``hit_prefetch`` in ``warprt.fast``).
 HIT_PREFETCH_TRIANGLES = 65536
 _TREE_PACKET = _splice(r"""
 bool alone = true;
@@ -2054,16 +2056,16 @@ def mesh_tree_packet(mid: wp.uint64, wide: wp.uint64, tris: wp.uint64, prefetch:
 # the lower leaf): a lane gets the tree's hit, except where two triangles meet the ray at the
 # same t or within rounding of it (a ray through a shared corner or edge) and rounding put one's
 # box entry past the other's t, so that the tree's walk never tested it: the bins then give the
-# nearer one, or at the same t the lower leaf (test_accel). For (d)'s 328k-triangle torus a ray
-# tests 3.2 triangles a lane against the packets' 20 wide node visits and 16 triangle tests a
-# packet: its camera rays alone take 0.77x the time (docs/benchmarks.md, levers).
+# nearer one, or at the same t the lower leaf (test_accel). On a large mesh a lane tests a few
+# triangles of its cell where a packet through the wide tree makes tens of node visits and
+# triangle tests (``camera_bins`` in ``warprt.fast``).
 # The bins' record, float32 words: 0-2 the origin, 3-5 / 6-8 / 9-11 the axes U, V (tangent) and
 # F (forward, unit), 12-13 the grid's lower corner in tangent coordinates (a = U·d / F·d, b), 14
 # the cells per tangent unit, then as int32 words 15 nx, 16 ny, 17 the first entry's word; from
 # word BINS_HEAD the nx·ny + 1 cell offsets; the entries as (least depth, leaf position) pairs.
 BINS_HEAD = 20
 BINS_TRIANGLES = 1024  # meshes with this many triangles or more get bins (as the shadow packets)
-BINS_PER_PIXEL = 2  # cells along a pixel's side (3 or 4: more entries, slower on (d))
+BINS_PER_PIXEL = 2  # cells along a pixel's side (3 or 4: more entries, and slower on a large mesh)
 BINS_MAX_CELLS = 1 << 22  # a larger grid gets larger cells (16 MB of offsets)
 BINS_MAX_ENTRIES = 1 << 23  # cells and entries over all of a scene's bins (about 48 MB)
 BINS_AFTER_RENDERS = 2  # a changed view gets bins once rendered this many times (build.DeviceScene.rendering)

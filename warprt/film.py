@@ -290,21 +290,20 @@ ADAPTIVE_MAX_FACTOR = 8  # and no pixel more than 8 × spp (each extra pass cost
 # the pixels whose pilot decides a pixel's count: the other checkerboard colour in its 5 × 5 window
 ADAPTIVE_NEIGHBOURS = tuple((a, b) for a in range(-2, 3) for b in range(-2, 3) if (a + b) % 2)
 ADAPTIVE_NEAR_WEIGHT = 12.0  # the 4 edge neighbours' weight in the mean variance (the 8 others: 1)
-# and in the spread of a one-sample pilot's values (12 there gave peer scenes (e) and (f) 1.013x the error)
+# and in the spread of a one-sample pilot's values (12 there gives a slightly larger error)
 ADAPTIVE_NEAR_WEIGHT_1 = 6.0
 # with a pilot of 2 samples or more, the share of a pixel's squared deviation taken from the contrast
 # across it (the squared differences of its left and right, and of its upper and lower neighbours'
 # mean luminances, added and over 4: the variance of a pixel that an edge between them halves),
 # the rest from that mean variance. The mean variance alone spreads an edge's noise over the
-# pixels on either side of it, which took the samples the edge's own pixels needed: relMSE at 4 /
-# 8 / 16 spp against the variance alone 0.59 / 0.82 / 0.91 on the peer scene (a)'s edges, 0.19 /
-# 0.41 / 0.53 on (b), 0.76 / 0.89 / 0.93 on (e)'s penumbrae, 0.90 / 0.96 / 0.96 through (f)'s
-# thin lens, 0.98 / 1.01 / 1.02 on (d)'s mesh (docs/benchmarks.md, levers)
+# pixels on either side of it, which takes the samples the edge's own pixels need: with this
+# share the error at 4 to 16 spp is lower on hard edges, penumbrae and defocused edges, most at
+# the lowest spp, and about the same where the noise is spread evenly (a bumpy mesh)
 ADAPTIVE_CONTRAST = 0.125
 # and a thin line's: the square of the left and right neighbours' sum less the upper and lower
-# ones' over 16 (the contrast of a one-pixel line between them, over 4), at this share: with the
-# near weight of 12 (was 6), relMSE 0.84 / 0.92 / 0.94 at 4 / 8 / 16 spp on (a)'s far bars, the
-# other peer scenes within 2% (docs/benchmarks.md, levers)
+# ones' over 16 (the contrast of a one-pixel line between them, over 4), at this share: with it
+# (and the near weight of 12) lines a pixel wide, which the contrast across a pixel misses, get
+# their samples, and scenes without such lines keep their error within a few percent
 ADAPTIVE_RIDGE = 0.25
 _KEEP = 1.0 - ADAPTIVE_CONTRAST  # (these exact in float32, as the native pass takes them)
 _CONTRAST4 = ADAPTIVE_CONTRAST / 4.0

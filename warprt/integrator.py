@@ -118,8 +118,9 @@ def packets_for(device) -> bool:
     has them (shape by shape otherwise), and with Sobol points and area lights their samples are
     drawn and shaded together (``sampling.sobol_packet``, ``lights.area_lights_packet``...), as
     clang vectors on the CPU. On CUDA, where a thread renders one pixel and the packet functions
-    run lane by lane, the packet's per-thread arrays only cost: the same images (bit for bit) took
-    1.4-4.8x the time a sample on an H200 and twice the compile (docs/benchmarks.md, "On a GPU")."""
+    run lane by lane, the packet's per-thread arrays only cost, in time a sample and in compile,
+    for the same images bit for bit (``python -m benchmarks.gpu --timing --packets on`` against
+    ``--packets off`` measures it)."""
     return bool(device.is_cpu)
 
 
@@ -356,7 +357,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                         kk = lane_key[k]
                     # (the packet's own rays where the camera packet made them; the origin, direction
                     # and time as plain values, not a struct chosen between the branches, whose
-                    # selects cost a lens render 3% of its time)
+                    # field-by-field selects cost time every sample)
                     co = frame.eye
                     cd = wp.vec3(dxp[k], dyp[k], dzp[k])
                     ct = cam.t_open
@@ -519,7 +520,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     packet_samples(lr, lg, lb, lp.r, lp.g, lp.b, lit, params.clamp, film_r, film_g, film_b, film_y2)
             # the packet's lanes pixel by pixel: a pixel's sums are fetched before its lanes and
             # stored after them, never inside the loop over its samples (stores there kept the
-            # compiler from hoisting the scene's loads out of it: 4-10% of a sample)
+            # compiler from hoisting the scene's loads out of it)
             k_lo = int(0)
             while k_lo < lanes:
                 jk = p_j
@@ -580,7 +581,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     first.depth = 0
                     first.key = wp.uint32(ROOT_KEY)
                     # without secondary rays the loop below runs once, on the camera ray itself: no
-                    # ray stack (its store and load cost 3-5% of a sample, levers table)
+                    # ray stack (a store and a load of a whole entry every sample)
                     e = first
                     if wp.static(F.secondary):
                         stack[0] = first
@@ -631,8 +632,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                         local += wp.vec3(dl[0], dl[1], dl[2])
                         if wp.static(F.area_lights):
                             # a separate call: a scene without area lights keeps the point-light code
-                            # small enough for the C++ compiler to inline (docs/architecture.md,
-                            # "Features and compile cost")
+                            # small enough for the C++ compiler to inline
                             if scene.n_alights > 0:
                                 al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
                                                         scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time,
@@ -726,8 +726,9 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         # threads finish together however their cores are shared. With meshes, a CPU thread
         # takes a whole block, a block of 4 rows column by column (render_pixels: its packets over
         # several pixels cover patches, and the rays of neighbouring pixels follow each other
-        # through the trees: (d) 0.94-0.97x a render; scenes without meshes lost 5-7% to the
-        # film's four interleaved rows, so keep to rows). One call site per kernel: render_pixels
+        # through the trees: ``column_blocks`` in ``warprt.fast``; scenes without meshes gain
+        # nothing from that and pay for the film's four interleaved rows, so keep to rows). One
+        # call site per kernel: render_pixels
         # is inlined
         t = wp.tid()
         px0 = int(0)

@@ -131,16 +131,17 @@ ADAPTIVE_PILOT_FRACTION = 2  # the pilot is the first spp / 2 samples of every p
 # pilot's (Renderer.light_samples), and a render's (or a batch's) whose threads take less than a
 # row each (spare slices absorb a slow core)
 SLICES_PER_WORKER = 4
-# consecutive rows a thread takes at a time: on (d) (4 spp, 4 light samples, 1 worker) rows 4 apart
-# cost 1.06x the CPU time of consecutive ones, rows 2 apart 1.025x (docs/benchmarks.md, levers)
+# consecutive rows a thread takes at a time: one after another on one thread, a block's rows find
+# the tree nodes and triangles the row above used still in the caches, which rows taken far apart
+# do not (``row_blocks`` in ``warprt.fast``)
 SLICE_BLOCK = 4
 
 
 def pixels_per_thread(device, width: int) -> int:
     """Pixels one thread of a render launch takes, consecutive in a row: a whole row on the CPU
     (a CPU launch copies its arguments, the ~1 KB scene record among them, for every thread:
-    once per row instead of once per pixel measured 1.2x faster at 1 spp on Newton's scene), one
-    on CUDA (every pixel its own GPU thread)."""
+    once per row instead of once per pixel; ``row_threads`` in ``warprt.fast``), one on CUDA
+    (every pixel its own GPU thread)."""
     return width if device.is_cpu else 1
 
 
@@ -389,8 +390,8 @@ class Renderer:
     def _use_light_map(self, on: bool) -> None:
         """The "auto" lights' counts for the next launches: the split map where there is one and
         ``on`` (uniform renders), else the one count. Adaptive renders take the one count: their
-        samples already go where the noise is, and with the map as well (e) took 1.07-1.18x the time
-        to its error (docs/benchmarks.md, levers)."""
+        samples already go where the noise is, and with the map as well they take longer to reach
+        the same error."""
         if on and self._light_map is not None:
             if self.built.data.split_tile == 0:
                 self.built.set_light_map(self._light_map, splitting.MAP_TILE)
@@ -483,9 +484,8 @@ class Renderer:
         """(film, held): the film a render accumulates into. The renderer keeps one between
         renders, left as the last render wrote it: the first pass of a render starts every pixel's
         sums instead of adding to them, so it needs no clearing, and its memory stays mapped (a new
-        film's zeroing and first-touch page faults cost about 1 ms a render at 256 × 256, an eighth
-        of a 1-spp render of peer scene (b)). A render in another thread holding it gets a film of
-        its own."""
+        film's zeroing and first-touch page faults cost about 1 ms a render at 256 × 256, much of
+        a small render at 1 spp). A render in another thread holding it gets a film of its own."""
         if not self._film_lock.acquire(blocking=False):
             return Film(width, height, self.device, zeroed=False), False
         film = self._film

@@ -433,8 +433,8 @@ def sobol_split_draw(state: SplitDraws, ns: int, k: int, out_x: wp.ref[PacketF],
 # float32; within 1.1 ulp of the float64 values there, tests/test_sampling_maps.py), for the
 # concentric map: written out operation by operation, so that a thin-lens camera packet
 # (``camera.lens_packet``) computes its 8 lanes' disk points with the same float32 operations as
-# clang vectors (libm's sinf and cosf, called lane by lane, took 7 ns of a 100-ns camera sample
-# on the thin-lens peer scene: docs/benchmarks.md, levers).
+# clang vectors (libm's sinf and cosf can only be called lane by lane; ``camera_packet_rays`` in
+# ``warprt.fast``).
 QSIN3 = -0.16666655242443085
 QSIN5 = 0.008332161232829094
 QSIN7 = -0.00019515295571181923

@@ -357,8 +357,8 @@ def sample_disk_emitter(rec: DiskRec, p: wp.vec3, u: wp.vec2) -> EmitterSample:
 # and ``sample_rect_prepared`` compute for each lane, area draws with or without the cosine warp,
 # as clang vectors on the CPU: the same operations in the same order (Warp's CPU fmax / fmin, no
 # contraction: Warp's C++ compiler fuses nothing), so each lane's point, direction and 1/density
-# are the scalar draw's bit for bit. About a fifth of the scalar draw's time per lane
-# (docs/benchmarks.md, levers). Like the scalar draws, the set-up (``rect_setup_packet``: the
+# are the scalar draw's bit for bit, for a fraction of the scalar draw's time per lane
+# (``shading_packets`` in ``warprt.fast``). Like the scalar draws, the set-up (``rect_setup_packet``: the
 # facing and near tests, the cosine warp's 9 knots and their sum, in ``RectKnots``) is made once
 # per packet and light, then each of its draws (``rect_draw_packet``) takes a 2D sample per lane.
 # Lanes the rectangle is drawn for by solid angle (near it, square edges: the spherical

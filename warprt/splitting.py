@@ -23,21 +23,17 @@ each twice with two fixed seeds. The squared difference of a pixel's two means, 
 error of one mean (the seeds' scrambles are independent); summed over the pixels it is what the
 image's mean squared error adds up: E(1) = E_cam + E_light and E(PROBE) = E_cam + E_light ·
 PROBE^-RATE. The ``regular`` sampler's points move with no seed: its two renders agree, there
-is no error to split, and N is 1. (An earlier pilot split the per-sample variances instead, as
-for independent samples: the camera's variance inside a pixel is what stratification removes
-best, so it overstated E_light / E_cam and chose 8 and 16 shadow rays where 2 to 4 reach a given
-error soonest: docs/benchmarks.md, levers.)
+is no error to split, and N is 1. (Splitting the per-sample variances instead, as for
+independent samples, would overstate E_light / E_cam: the camera's variance inside a pixel is
+what stratification removes best, and such a split chooses 8 and 16 shadow rays where 2 to 4
+reach a given error soonest.)
 
 The cost ratio is a constant, not a timing, so the same scene always gets the same N and the
 same seed the same image: one more light sample (the light draw and its shadow ray) costs about
-a third of a camera sample (camera ray, hit, shading, film) on the peer benchmark's mesh scenes
-(2 workers, wall ms at 8 spp for N = 1, 2, 4, 8, a line fitted through them: 40, 50, 69, 109 on
-the penumbrae, C_cam / C_light = 3.1; 52, 62, 83, 127 through the thin lens, 3.8; 67, 90, 133,
-222 on the 328k-triangle mesh, 2.1, whose shadow rays cross a deep tree; the median is taken).
-Measured again once the shadow rays had become cheaper (at first: 2.2 on the penumbrae, 2.1 on
-the mesh): with 3.1 the thin lens takes 4 shadow rays instead of 2, its error × time 0.72–0.84×
-at 2–16 spp (docs/benchmarks.md, levers). With several "auto" lights each takes N, and a unit of
-N costs one light sample per such light.
+a third of a camera sample (camera ray, hit, shading, film). The constant is the median, over
+mesh scenes with area lights, of the ratio fitted to a render's time against N at a fixed spp
+(lower where shadow rays cross a deep tree). With several "auto" lights each takes N, and a unit
+of N costs one light sample per such light.
 
 The choice is made once per renderer (the split is the scene's, not the render's) and is
 independent of the seed, spp and workers.

@@ -44,12 +44,11 @@ SHADOW_LANES_ALONE = fast.import_off("shadow_packets")
 TIE = SPAWN_REL  # relative band within which an analytic hit beats a mesh hit: the spawn-offset factor 2^-17
 
 # the fewest rays worth a packet through the analytic BVH: each node costs a packet the 8 lanes'
-# tests whatever the lanes in use, so fewer rays go one by one (peer scene (a), time per sample
-# against one by one, 1 worker, with the node tests as clang vectors (accel.packet_node): 2 rays
-# 1.00-1.01x, 3 0.80x, 4 0.69-0.70x; written per lane in Warp's language the break-even was 4)
+# tests whatever the lanes in use, so fewer rays go one by one (with the node tests as clang
+# vectors, accel.packet_node, 2 rays in a packet take as long as alone and 3 take less)
 PACKET_MIN = 3
-# the fewest camera rays worth a packet through the meshes (mesh_packet; peer scenes (d) and (e):
-# 3 rays 1.02x and 1.24x, 4 rays 0.93x and 1.01x the time one by one)
+# the fewest camera rays worth a packet through the meshes (mesh_packet: with 3 or 4 rays a packet
+# is not faster than the rays one by one on every mesh)
 MESH_PACKET_MIN = 5
 
 
@@ -138,7 +137,8 @@ class Pose:
 def plain_pose(pose: Pose) -> int:
     """1 where the pose neither rotates nor scales. The maps below then skip the rotation (by the
     unit quaternion: x·1 plus products of zeros) and the division by 1: the same coordinates, up
-    to the sign of a zero one; 2.6-3.6% of a mesh scene's render."""
+    to the sign of a zero one. Most instances neither rotate nor scale, and the maps run for
+    every ray that meets an instance's box."""
     if pose.rot[0] == 0.0 and pose.rot[1] == 0.0 and pose.rot[2] == 0.0 and pose.rot[3] == 1.0:
         if pose.scl[0] == 1.0 and pose.scl[1] == 1.0 and pose.scl[2] == 1.0:
             return 1
@@ -1263,8 +1263,7 @@ def make_trace(F: Features) -> SimpleNamespace:
                        dy: PacketF, dz: PacketF, t_max: PacketF, time: PacketF, own_rect: int) -> int:
         """``occluded_packet``'s answer with shadow_packets switched off (``warprt.fast``): each
         lane's shadow ray alone through ``transmittance``. Compiled in only then: the same code
-        behind a run-time test, even out of line, took the packets' kernels 1.03-1.14x the CPU time
-        on peer scenes (d) and (e) with everything on."""
+        behind a run-time test, even out of line, slowed the packets' kernels with everything on."""
         blocked = int(0)
         for k in range(n):
             if (lanes >> k) & 1 != 0:

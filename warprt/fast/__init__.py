@@ -82,8 +82,8 @@ _LIST = (
     Mechanism("shadow_packets", "a shaded packet's shadow rays tested together (trace.occluded_packet); off: each "
               "lane's alone through trace.transmittance (trace.lanes_occluded)",
               "shading packets: point lights, and rectangle lights' lanes drawn by area (other emitters go alone)",
-              "trace.occluded_packet (compiled in: a run-time test there cost the packets 3-14% of the CPU time "
-              "of peer scenes (d) and (e))", "import", requires=("shading_packets",)),
+              "trace.occluded_packet (compiled in: a run-time test there slows the packets with everything on)",
+              "import", requires=("shading_packets",)),
     Mechanism("sobol_packets", "a packet's Sobol points drawn for its 8 lanes at once (sampling.sobol_packet, "
               "sobol_split_setup / sobol_split_draw)",
               "camera packets with the sobol sampler (camera samples; area-light samples of shaded packets)",
