@@ -89,12 +89,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--width", type=_positive_int, help="image width in pixels")
     r.add_argument("--height", type=_positive_int, help="image height in pixels")
     r.add_argument("--max-depth", type=_non_negative_int, help="reflection/refraction depth limit")
-    r.add_argument("--sampler", choices=["regular", "independent", "stratified", "sobol"], help="pixel sampler")
+    r.add_argument("--sampler", choices=["regular", "independent", "stratified", "sobol"],
+                   help="pixel sampler (default: the scene's render.sampler, sobol unless it says otherwise)")
     r.add_argument("--device", help="Warp device: cpu, cuda, cuda:0 ... (default: cuda when present)")
     r.add_argument("--workers", type=_positive_int, help="CPU worker threads (default: one per core)")
     r.add_argument("--time-budget", type=_positive_float, help="stop after this many seconds of rendering")
-    r.add_argument("--adaptive", action="store_true",
-                   help="adaptive sampling: spp is the mean per pixel, noisy pixels get more (decided after the first spp/2)")
+    r.add_argument("--adaptive", action=argparse.BooleanOptionalAction, default=None,
+                   help="adaptive sampling: spp is the mean per pixel, noisy pixels get more (decided after the "
+                        "first spp/2); by default on (the scene's render.adaptive) unless --time-budget or "
+                        "--planned-spp is given; --no-adaptive renders every pixel at spp")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--aovs", type=_aov_list, default=[],
                    help="extra EXR layers, comma separated: depth,z,normal,albedo,position,object_id,material,motion")

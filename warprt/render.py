@@ -105,7 +105,7 @@ class RenderResult:
             args = f"--spp {self.spp}"
             if self.planned_spp != self.spp:
                 args += f" --planned-spp {self.planned_spp}"
-            meta["warprt_reproduce"] = f"{args} --seed {self.seed} --sampler {self.sampler}"
+            meta["warprt_reproduce"] = f"{args} --no-adaptive --seed {self.seed} --sampler {self.sampler}"
         elif not self.stopped_by:
             meta["warprt_reproduce"] = f"--spp {self.planned_spp} --adaptive --seed {self.seed} --sampler {self.sampler}"
         return meta
@@ -498,7 +498,7 @@ class Renderer:
     def render(self, spp: int | None = None, seed: int = 0, *, workers: int | None = None,
                slices: int | None = None, pass_spp: int | None = None, time_budget: float | None = None,
                target_error: float | None = None, progress: bool | None = None,
-               aovs=None, as_warp: bool = False, stop=None, adaptive: bool = False,
+               aovs=None, as_warp: bool = False, stop=None, adaptive: bool | None = None,
                planned_spp: int | None = None) -> RenderResult:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
         passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
@@ -512,19 +512,26 @@ class Renderer:
         event (anything with ``is_set()``, e.g. ``threading.Event``) read after each pass like Ctrl-C:
         once set, the render returns what it has, marked ``interrupted`` (how a Ctrl-C reaches
         renders in worker threads and processes, where no SIGINT handler can be installed).
-        ``adaptive=True``: adaptive sampling. The first spp/2 samples of every pixel (the pilot)
+        ``adaptive``: adaptive sampling (default: the scene's ``render.adaptive``, on unless it
+        says false, wherever the render takes a sample budget: not with ``time_budget``,
+        ``target_error`` or ``planned_spp``, which then render uniformly). The first spp/2 samples of every pixel (the pilot)
         measure the noise, and the ``spp × pixels`` budget, pilot included, is shared out in
         proportion to it (every pixel at least spp/2, at most 8 × spp). A pixel's count comes from
         its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps every
         sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean count.
-        At 1 spp it renders uniformly; it does not combine with ``time_budget`` or
-        ``target_error``. ``planned_spp`` (default ``spp``): the sample count the sampler lays its
+        At 1 spp it renders uniformly; ``adaptive=True`` does not combine with ``time_budget``,
+        ``target_error`` or ``planned_spp``, ``adaptive=False`` renders uniformly. ``planned_spp`` (default ``spp``): the sample count the sampler lays its
         pattern out for (the ``stratified`` grid, the ``regular`` centres, the shutter's
         intervals); the first ``spp`` of those samples are run. A render stopped early (time
         budget, target error, Ctrl-C) holds the first N samples of its planned pattern, so
         ``render(spp=N, planned_spp=P, seed=S)`` gives it again bit for bit
         (``RenderResult.reproduction``)."""
         spp = self.scene.render.spp if spp is None else spp
+        if adaptive is not None and not isinstance(adaptive, bool):
+            raise RenderError(f"adaptive must be True, False or None (the scene's render.adaptive), got {adaptive!r:.60}")
+        if adaptive is None:  # the scene's choice, where the render takes a sample budget
+            adaptive = (self.scene.render.adaptive and planned_spp is None and time_budget is None
+                        and target_error is None)
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
             raise RenderError(f"spp must be a positive integer, got {spp!r}")
         if spp > SPP_LIMIT:

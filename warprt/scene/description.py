@@ -606,7 +606,9 @@ class RectLight:
     edge1: Vec3 = (1.0, 0.0, 0.0)
     edge2: Vec3 = (0.0, 0.0, 1.0)
     radiance: RGB = (1.0, 1.0, 1.0)  # Le, emitted radiance
-    samples: int | str = 1  # shadow rays per shading point and camera sample, or "auto" (warprt.splitting)
+    # shadow rays per shading point and camera sample, or "auto": chosen per scene from a small
+    # pilot (warprt.splitting), the default
+    samples: int | str = "auto"
 
     def __post_init__(self):
         r = Rectangle(self.corner, self.edge1, self.edge2)
@@ -632,7 +634,7 @@ class SphereLight:
     center: Vec3 = (0.0, 4.0, 0.0)
     radius: float = 0.5
     radiance: RGB = (1.0, 1.0, 1.0)
-    samples: int | str = 1
+    samples: int | str = "auto"  # (as RectLight's)
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
@@ -652,7 +654,7 @@ class DiskLight:
     normal: Vec3 = (0.0, -1.0, 0.0)
     radius: float = 0.5
     radiance: RGB = (1.0, 1.0, 1.0)
-    samples: int | str = 1
+    samples: int | str = "auto"  # (as RectLight's)
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
@@ -671,7 +673,7 @@ class DiskLight:
 @dataclass(frozen=True)
 class RenderSettings:
     spp: int = 1  # samples per pixel
-    sampler: str = "stratified"  # "regular", "independent", "stratified" or "sobol"
+    sampler: str = "sobol"  # "regular", "independent", "stratified" or "sobol"
     max_depth: int = 5  # reflection/refraction bounces after the camera ray
     min_weight: float = 1e-4  # rays whose throughput falls below this are not traced
     t_min: float = 0.0  # camera rays: nearest accepted distance
@@ -680,6 +682,8 @@ class RenderSettings:
     # rectangle lights on Lambertian surfaces: "cosine" draws directions in proportion to n·ω, so a
     # fully lit (or fully shadowed) point has no noise; "uniform" by solid angle or area
     light_sampling: str = "cosine"
+    # adaptive sampling where a render takes a sample budget (``Renderer.render``'s ``adaptive``)
+    adaptive: bool = True
 
     def __post_init__(self):
         set_field(self, "spp", as_int(self.spp, "spp", minimum=1))
@@ -698,6 +702,8 @@ class RenderSettings:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
         set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
         set_field(self, "light_sampling", as_choice(self.light_sampling, "light_sampling", LIGHT_SAMPLING))
+        if not isinstance(self.adaptive, bool):
+            raise SceneError(f"expected true or false, got {self.adaptive!r}", "adaptive")
 
 
 # beyond this, squared distances (|o - c|² in the sphere test, |p - x|² to a light) overflow
