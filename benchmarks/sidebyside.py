@@ -4,8 +4,9 @@
 * ``WarprtSide`` renders a scene in warprt's configurations. A configuration is named
   ``BASE[+split][+adaptive]``: BASE ``defaults`` is the scene as built, rendered by
   ``Renderer.render`` with no option (whatever warprt does without being asked), or a sampler
-  name (``sobol``, ``stratified``, ...) set with ``with_settings(sampler=...)``; ``+split`` gives
-  every area light ``samples = "auto"``; ``+adaptive`` renders with ``adaptive=True``.
+  name (``sobol``, ``stratified``, ...) set with ``with_settings(sampler=...)``, its area lights
+  with ``samples = "auto"`` given 1 and rendered with ``adaptive=False``; ``+split`` gives every
+  area light ``samples = "auto"``; ``+adaptive`` renders with ``adaptive=True``.
 * ``MitsubaSide`` renders the exported scene (``benchmarks.mitsuba_export``) with Mitsuba's
   samplers (``multijitter``, ``independent``; ``multijitter+split``: with ``emitter_samples``).
 * ``render_passes`` averages seeded passes and keeps the two halves for a noise estimate
@@ -77,18 +78,22 @@ class WarprtSide:
         t0 = time.perf_counter()
         split_scene = scene.replace(lights=tuple(dataclasses.replace(light, samples="auto")
                                                  if hasattr(light, "samples") else light for light in scene.lights))
+        # (a named configuration says everything: no split and uniform sampling unless it asks)
+        one_scene = scene.replace(lights=tuple(dataclasses.replace(light, samples=1)
+                                               if getattr(light, "samples", None) == "auto" else light
+                                               for light in scene.lights))
         self.renderers, self.adaptive, self.setup = {}, {}, {}
         by_setup = {}
         for c in configs:
             base, split, adaptive = parse_config(c)
             setup = (base, split)
             if setup not in by_setup or not share:
-                s = split_scene if split else scene
+                s = split_scene if split else (scene if base == "defaults" else one_scene)
                 if base != "defaults":
                     s = s.with_settings(sampler=base)
                 by_setup[setup] = warprt.Renderer(s, device="cpu")
             self.renderers[c] = by_setup[setup]
-            self.adaptive[c] = adaptive
+            self.adaptive[c] = adaptive if base != "defaults" or adaptive else None
             self.setup[c] = setup
         self.build_s = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -104,7 +109,7 @@ class WarprtSide:
         # and the split map its uniform renders take (blocks per count), where it has one
         self.light_maps = {c: {int(k): int(v) for k, v in zip(*np.unique(r.light_map, return_counts=True))}
                            for c, r in self.renderers.items()
-                           if not self.adaptive[c] and r.light_samples(threads) and r.light_map is not None}
+                           if self.adaptive[c] is False and r.light_samples(threads) and r.light_map is not None}
 
     @property
     def configs(self):
@@ -114,7 +119,7 @@ class WarprtSide:
         """(image, wall seconds, spp rendered, CPU seconds of the whole process)."""
         c0, t0 = time.process_time(), time.perf_counter()
         res = self.renderers[config].render(spp=spp, seed=seed, workers=self.threads, progress=False,
-                                            **({"adaptive": True} if self.adaptive[config] else {}))
+                                            **({} if self.adaptive[config] is None else {"adaptive": self.adaptive[config]}))
         image = np.asarray(res.image, dtype=np.float32)
         return image, time.perf_counter() - t0, res.spp, time.process_time() - c0
 
