@@ -606,7 +606,7 @@ class Renderer:
                         n0 = max(1, int(spp) // ADAPTIVE_PILOT_FRACTION)  # 2 spp: one sample, then counts
                         done, interrupted, _ = self._passes(film, params, 0, n0, ctrl_c, bar, None, None, **run)
                         if not interrupted:
-                            counts = adaptive_counts(film, done, int(spp), native="native_counts" not in self.fast_off)
+                            counts = adaptive_counts(film, done, int(spp))
                             film.set_counts(counts)
                             planned = int(counts.max())
                             if bar is not None:
