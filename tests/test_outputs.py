@@ -279,6 +279,9 @@ def test_a_batch_frame_carries_its_own_cameras_matrices(tmp_path):
     assert result.image is result.color and result.metadata["warprt_spp"] == 1
     grid = Image.open(io.BytesIO(result._repr_png_()))
     assert grid.size == (2 * 16 + 2, 2 * 12 + 2)
+    one = warprt.BatchRenderer(scene, device="cpu").render(spp=1)  # a batch of one image saves as it is
+    save_image(one, tmp_path / "one.exr")
+    np.testing.assert_array_equal(read_exr(tmp_path / "one.exr")[0], one.numpy()[0, 0])
 
 
 # --- half floats -------------------------------------------------------------------------------------

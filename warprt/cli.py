@@ -10,7 +10,10 @@ reached: the output line says "interrupted: partial image", and the file carries
 ``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes). Every file
 records what reproduces it (``RenderResult.reproduction``: ``warprt_reproduce`` holds the
 options, e.g. ``--spp 37 --planned-spp 1024 --seed 0 --sampler stratified`` for a render that a
-time budget stopped at 37 samples of a 1024-sample pattern). A signal while the images are
+time budget stopped at 37 samples of a 1024-sample pattern), and an EXR also the camera's
+``worldToCamera``/``worldToNDC`` and, with ids, their names (``warprt.results``). ``--exposure``
+brightens PNG and JPEG outputs; ``--bits 16`` writes a half-float EXR and a 16-bit PNG (and is
+refused for a JPEG before anything renders). A signal while the images are
 written is held until they are complete (one line says so; a second one abandons the files
 not yet written). Outputs whose disk cannot hold them are refused before rendering.
 ``render-sequence`` interrupted keeps every frame written so far (each is written as it finishes),

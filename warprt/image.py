@@ -621,8 +621,8 @@ def read_exr(path: str | os.PathLike, layers: bool = False):
     """Read an EXR written by warprt (this layout or the earlier one, see the module docstring;
     any EXR with R, G and B channels): the colour as the render returned it, (H, W, 3) float32
     (a premultiplied file's background, ``warprt_background``, added back where the coverage is
-    below 1: bit for bit where it is 0 or 1 and the background black, to float32 rounding
-    elsewhere), and the header; with ``layers=True`` also a dict of the other layers
+    below 1: bit for bit where the coverage is 1, and everywhere under a black background; to
+    float32 rounding elsewhere), and the header; with ``layers=True`` also a dict of the other layers
     (``{"depth": (H, W), "normal": (H, W, 3)...}``, the same names, shapes and dtypes as
     ``render(..., aovs=...)`` returns; ``coverage`` is the alpha)."""
     import OpenEXR
