@@ -299,7 +299,8 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     ridge keep an edge's or a thin line's samples on the pixels it runs through. Within each
     colour the budget is shared in proportion to those deviations (Neyman allocation: the summed
     variance Σ σ²/N of the pixel means is least for a given total), with every pixel at least
-    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp; the normaliser of a
+    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp (what a capped pixel
+    would take beyond is shared among the others, ``_capped_shares``); the normaliser of a
     colour is itself a function of the other colour's samples. Computed with numpy on the host (a
     CUDA film's sums copied there), each float32 and float64 operation in a fixed order, so that
     a film gives the same counts on every device and machine."""
@@ -312,9 +313,35 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
         dev = nb[mine].astype(np.float64)  # the shares in float64: the budget must add up exactly
         total = _sum_in_order(dev)
         if total > 0.0 and math.isfinite(total):
-            share = np.minimum(n_min + float(spp - n_min) * mine.size * dev / total, ADAPTIVE_MAX_FACTOR * spp)
-            counts[mine] = _round_keeping_sum(share)
+            counts[mine] = _round_keeping_sum(_capped_shares(dev, total, n_min, spp))
     return counts
+
+
+def _capped_shares(dev: np.ndarray, total: float, n_min: int, spp: int) -> np.ndarray:
+    """Each pixel's n_min plus its share of the colour's budget (spp − n_min) × M, in proportion
+    to ``dev`` (summing to ``total`` > 0), float64. A share above ADAPTIVE_MAX_FACTOR × spp is
+    held there and what it would have taken beyond is shared out again, in the same proportion,
+    among the pixels under the cap (repeated while one passes it): the budget is spent whole,
+    whatever a few very bright pixels (a light in view) ask for. With no pixel at the cap the
+    shares are n_min + budget × dev / total."""
+    cap = float(ADAPTIVE_MAX_FACTOR * spp)
+    budget = float(spp - n_min) * dev.size
+    left = budget
+    capped = np.zeros(dev.size, dtype=bool)
+    while True:
+        share = n_min + left * dev / total
+        over = share > cap
+        over &= ~capped
+        if not over.any():
+            break
+        capped |= over
+        total = _sum_in_order(dev[~capped])
+        left = budget - (cap - n_min) * int(np.count_nonzero(capped))
+        if not total > 0.0 or not left > 0.0:  # (every pixel left has no deviation, or no budget)
+            share = np.full(dev.size, float(n_min))
+            break
+    share[capped] = cap
+    return np.minimum(share, cap)
 
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
