@@ -209,7 +209,7 @@ def calibrate(base: Local, target_s: float, workers: int, spp0: int = 8, cap: in
 def study_scene(spec: SceneSpec, args, log) -> dict:
     scene, adaptive = configured(spec.build(), args.config)
     base = Local(scene, adaptive, ())
-    use = in_use(base.renderer, adaptive=adaptive)
+    use = in_use(base.renderer)
     names = [n for n in fast.names() if use[n] and (not args.only or n in args.only)]
     log(f"{spec.label}: {scene.camera.width}x{scene.camera.height}, features {base.renderer.features.key}, "
         f"build {base.build_s:.2f} s; mechanisms in use: {', '.join(names)}")

@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     os.makedirs(args.out_dir, exist_ok=True)
     for name in ("build_scene.png", "build_scene.exr"):
         path = os.path.join(args.out_dir, name)
-        warprt.save_image(result.image, path, metadata={"warprt_spp": result.spp, "warprt_seed": args.seed})
+        warprt.save_image(result, path)  # with its metadata: spp, seed, the camera's matrices
         print(f"wrote {path}")
     return 0
 

@@ -1,6 +1,7 @@
 """AOVs in EXR files, read back through OpenEXR's own API (``OpenEXR.File``, 3.x), not through
 ``warprt.read_exr``: the standard channel names (``R``, ``G``, ``B`` colour, ``A`` coverage,
-``Z`` depth, ``N.X/Y/Z`` normal, ``P.X/Y/Z`` position, ``albedo.R/G/B``...), the pixel types
+``Z`` camera-space depth, ``distance.V`` the ray's, ``N.X/Y/Z`` normal, ``P.X/Y/Z`` position,
+``albedo.R/G/B``, ``forward.u/v`` motion with v up...), the pixel types
 (FLOAT, 32-bit, and UINT for ids, stored as id + 1 with 0 for none), the header, and the values:
 bit for bit what ``render(..., aovs=...)`` returned, and, for a rectangle facing the camera at a
 known distance, the closed forms of depth, z, normal, position, albedo, ids and camera motion.
@@ -33,13 +34,15 @@ def expected_channels(names) -> set[str]:
 
 
 def stored(channels, name) -> np.ndarray:
-    """AOV ``name`` as render() returns it, from the raw channels (ids: UINT id + 1)."""
+    """AOV ``name`` as render() returns it, from the raw channels (ids: UINT id + 1; the motion's
+    v up, the array's y down)."""
     spec = AOVS[name]
     if spec.uint:
         return channels[spec.exr[0]][1].astype(np.int64) - 1
     if len(spec.exr) == 1:
         return channels[spec.exr[0]][1]
-    return np.stack([channels[c][1] for c in spec.exr], axis=-1)
+    signs = spec.signs or (1.0,) * len(spec.exr)
+    return np.stack([channels[c][1] * np.float32(s) for c, s in zip(spec.exr, signs)], axis=-1)
 
 
 def read_channels(path) -> tuple[dict, dict]:
@@ -93,8 +96,8 @@ def facing(tmp_path_factory):
 def test_channel_names_types_and_header(facing):
     arrays, header, channels = facing
     assert set(channels) == expected_channels(AOV_NAMES)
-    for name in ("R", "G", "B", "A", "Z", "N.X", "N.Y", "N.Z", "P.X", "P.Y", "P.Z", "albedo.R", "albedo.G",
-                 "albedo.B", "object_id", "material"):
+    for name in ("R", "G", "B", "A", "Z", "distance.V", "N.X", "N.Y", "N.Z", "P.X", "P.Y", "P.Z", "albedo.R",
+                 "albedo.G", "albedo.B", "object_id", "material", "forward.u", "forward.v"):
         assert name in channels
     for name, (ptype, pixels) in channels.items():
         uint = name in ("object_id", "material")

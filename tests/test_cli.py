@@ -281,7 +281,7 @@ def test_an_unavailable_device_exits_2(scene_file, tmp_path, capsys):
     assert not (tmp_path / "a.png").exists()
 
 
-@pytest.mark.parametrize("name", ["out.jpg", "out", "out.PNG.txt"])
+@pytest.mark.parametrize("name", ["out.tif", "out", "out.PNG.txt"])
 def test_unsupported_extension_exits_2_before_rendering(scene_file, tmp_path, capsys, name):
     good = tmp_path / "good.png"
     code, out, err = run(["render", str(scene_file), "-o", str(good), "-o", str(tmp_path / name)], capsys)
@@ -352,7 +352,8 @@ def test_check_output_in_the_python_api(tmp_path):
     with pytest.raises(warprt.RenderError, match="does not exist"):
         warprt.check_output(tmp_path / "new" / "a.png")
     with pytest.raises(warprt.RenderError, match="unsupported image format"):
-        warprt.check_output(tmp_path / "a.jpg")
+        warprt.check_output(tmp_path / "a.tif")
+    assert warprt.check_output(tmp_path / "a.jpg") == str(tmp_path / "a.jpg")
     (tmp_path / "f").write_text("")
     with pytest.raises(warprt.RenderError, match="is not a folder"):
         warprt.check_output(tmp_path / "f" / "a.png", create_folders=True)

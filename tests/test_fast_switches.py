@@ -80,11 +80,11 @@ SWITCHES = [name for name, m in fast.MECHANISMS.items() if m.stage != "import"]
 def test_each_mechanism_switched_off_gives_the_same_image(reference, name):
     base, ref = reference
     assert base.fast_off == frozenset()
-    assert in_use(base, adaptive=True)[name], f"{name} is not used by the test scene"
+    assert in_use(base)[name], f"{name} is not used by the test scene"
     r = warprt.Renderer(_scene(), device="cpu", fast_off=[name])
-    assert name in r.fast_off and not in_use(r, adaptive=True)[name]
+    assert name in r.fast_off and not in_use(r)[name]
     if fast.MECHANISMS[name].stage == "build":  # (the table not built, the record field left 0)
-        assert not in_use(_with_all_on(r), adaptive=True)[name]
+        assert not in_use(_with_all_on(r))[name]
     out = _render(r)
     assert ref.image.mean() > 0.05
     assert out.image.tobytes() == ref.image.tobytes(), name
@@ -210,7 +210,7 @@ def test_import_stage_switches_compile_out_and_give_the_same_image():
     prefetches stay: another switch) and a kernel whose packets' shadow rays go each alone, and it
     renders the same image bit for bit."""
     r = warprt.Renderer(_mesh_scene(), device="cpu")
-    use = in_use(r, adaptive=True)
+    use = in_use(r)
     assert use["node_prefetch"] and use["shadow_packets"] and use["mesh_shadow_packets"] and use["mesh_packets"]
     env = dict(os.environ, **{fast.ENV: "node_prefetch,shadow_packets"})
     code = ("import json, sys; sys.path.insert(0, sys.argv[1]); import test_fast_switches as t; "

@@ -160,9 +160,9 @@ def test_non_numeric_images_are_render_errors(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("name", ["a.jpg", "a.tiff", "a", "a.exr.bak"])
+@pytest.mark.parametrize("name", ["a.tiff", "a", "a.exr.bak", "a.jpg2"])
 def test_unsupported_formats_are_render_errors(tmp_path, name):
-    with pytest.raises(RenderError, match=r"unsupported image format.*\.exr or \.png") as info:
+    with pytest.raises(RenderError, match=r"unsupported image format.*\.exr, \.png or \.jpg") as info:
         save_image(np.zeros((2, 2, 3)), tmp_path / name)
     assert name in str(info.value)
     assert list(tmp_path.iterdir()) == []

@@ -21,6 +21,7 @@ from warprt import (
     Animation, Camera, Disk, DiskLight, Material, Mesh, Plane, PointLight, Rectangle, RectLight, RenderSettings, Scene,
     SceneError, Sphere, SphereLight, Transform,
 )
+from warprt.scene.description import Box
 from warprt._warp import resolve_device
 from warprt.build import DeviceScene, prepare_mesh
 
@@ -860,6 +861,54 @@ def test_keyword_checks_keep_signatures_defaults_and_replace():
     assert dataclasses.replace(s, radius=3).radius == 3.0 and dataclasses.replace(s, radius=3).center == (1, 2, 3)
     with pytest.raises(SceneError, match="did you mean 'radius'"):
         dataclasses.replace(s, radus=3)
+
+
+def test_quaternion_is_one_name_in_files_and_in_python(tmp_path):
+    """``quaternion`` (the scene files' name) is a keyword of Transform, and
+    ``rotation_quaternion`` (Python's older one, the field that holds it) is accepted in files,
+    transform tables and keyframes alike: the four spellings give the same transform."""
+    q = (0.0, 0.3826834, 0.0, 0.9238795)
+    python_new = Transform(quaternion=q, translate=(1, 0, 0))
+    python_old = Transform(rotation_quaternion=q, translate=(1, 0, 0))
+    files = [load(tmp_path, f'[[shapes]]\ntype = "box"\ntransform = {{ translate = [1, 0, 0], {key} = {list(q)} }}\n')
+             .shapes[0].transform for key in ("quaternion", "rotation_quaternion")]
+    assert python_new == python_old == files[0] == files[1]
+    np.testing.assert_allclose(python_new.quaternion(), np.array(q) / np.linalg.norm(q), atol=1e-15)
+    table = Box(transform={"rotation_quaternion": q}).transform
+    assert table == Box(transform={"quaternion": q}).transform == Transform(quaternion=q)
+    keys = [Box(keyframes=[{"time": 0.0, name: q}]).keyframes[0] for name in ("quaternion", "rotation_quaternion")]
+    assert keys[0] == keys[1] and "quaternion" in keys[0]
+    # errors name the spelling given, and both at once is refused
+    with pytest.raises(SceneError, match="must not be zero") as info:
+        Transform(quaternion=(0, 0, 0, 0))
+    assert info.value.field == "quaternion"
+    with pytest.raises(SceneError, match="must not be zero") as info:
+        Transform(rotation_quaternion=(0, 0, 0, 0))
+    assert info.value.field == "rotation_quaternion"
+    with pytest.raises(SceneError, match="same field"):
+        Transform(quaternion=q, rotation_quaternion=q)
+    with pytest.raises(SceneError, match="same field"):
+        Box(transform={"quaternion": q, "rotation_quaternion": q})
+    with pytest.raises(SceneError, match="rotate .*or.* quaternion, not both"):
+        Transform(quaternion=q, rotate=(0, 10, 0))
+
+
+def test_a_missing_mesh_file_is_refused_when_the_mesh_is_made(tmp_path, monkeypatch):
+    """``Mesh(file=...)`` names a missing file (and where it looked) at once, not when a render
+    builds the scene; a folder is not a mesh file either. A file that exists is accepted, with a
+    relative path taken from the current folder as the build reads it."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SceneError, match=r"mesh file not found: 'missing\.ply'") as info:
+        Mesh(file="missing.ply")
+    assert info.value.field == "file" and str(tmp_path / "missing.ply") in str(info.value)
+    (tmp_path / "meshes").mkdir()
+    with pytest.raises(SceneError, match="is a folder") as info:
+        Mesh(file="meshes")
+    assert info.value.field == "file"
+    (tmp_path / "meshes" / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    mesh = Mesh(file="meshes/tri.obj")
+    assert mesh.file == "meshes/tri.obj"
+    assert DeviceScene(Scene(shapes=(mesh,)), resolve_device("cpu")).data.n_inst == 1
 
 
 def test_python_api_errors_carry_the_scene_source():

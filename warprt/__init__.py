@@ -6,6 +6,7 @@ Quick use::
     scene = warprt.load_scene("scenes/showcase.toml")
     image = warprt.render(scene, spp=16)          # (H, W, 3) float32 linear radiance
     warprt.save_image(image, "out/showcase.png")
+    plt.imshow(warprt.linear_to_srgb(image))      # the sRGB view of the linear image
 
 The same kernels run on the CPU (tiles over a thread pool) and on CUDA (``device="cuda"``).
 """
@@ -24,7 +25,8 @@ _EXPORTS = {
     "check_output": "image", "read_exr": "image", "save_image": "image",
     "camera_rays": "query", "trace_rays": "query", "load_assets": "scene.assets",
     "Renderer": "render", "RenderResult": "render",
-    "BatchRenderer": "worlds", "BatchResult": "worlds",
+    "BatchRenderer": "worlds", "BatchResult": "worlds", "FrameResult": "results", "RenderLayers": "results",
+    "linear_to_srgb": "colour", "srgb_to_linear": "colour",
     **{name: "scene" for name in (
         "Animation", "Box", "Camera", "Capsule", "Cylinder", "DirectionalLight", "Disk", "DiskLight", "Material",
         "Mesh", "Plane", "PointLight", "Rectangle", "RectLight", "RenderSettings", "Scene", "Sphere", "SphereLight",
@@ -36,13 +38,14 @@ __all__ = [
     "Animation", "BatchRenderer", "BatchResult", "Box", "Camera", "Capsule", "Cylinder", "DirectionalLight", "Disk", "DiskLight", "Features", "Material", "Mesh", "Plane", "PointLight", "Rectangle",
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
     "SphereLight", "Transform", "load_scene", "parse_scene", "check_output", "read_exr", "render", "save_image",
-    "scene_from_string", "camera_rays", "trace_rays", "load_assets",
+    "scene_from_string", "camera_rays", "trace_rays", "load_assets", "FrameResult", "RenderLayers", "linear_to_srgb",
+    "srgb_to_linear",
 ]
 
 
 def __getattr__(name: str):
     if name in _EXPORTS:
-        if _EXPORTS[name] != "errors":
+        if _EXPORTS[name] not in ("errors", "colour"):  # (those two need no Warp)
             importlib.import_module("._warp", __name__)  # Warp initialised quietly, with warprt's settings
         value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
     elif not name.startswith("__"):  # a submodule (warprt.image, warprt.animation ...), as before

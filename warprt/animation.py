@@ -27,6 +27,7 @@ import numpy as np
 from .errors import FramesInterrupted, RenderError, WriteError, frame_list
 from .image import check_output, save_image_or_fallback
 from .render import Renderer, check_seed
+from .results import RenderLayers
 from .scene.description import SOLID_TYPES, Camera, Mesh, Scene, Sphere
 from .scene.transform import Transform, interpolate_rotation, rotation_keys
 
@@ -129,16 +130,19 @@ def check_frames(scene: Scene, frames=None, name: str = "frames") -> list[int]:
     return [int(f) for f in frames]
 
 
-def keep_frame(output: str | None, frame: int, image, spp: int):
+def keep_frame(output: str | None, frame: int, image, spp: int, metadata: dict | None = None, result=None):
     """A finished frame: the image itself, or with ``output`` the path it was written to
-    (atomically, its folder created, with its spp and frame number in the metadata)."""
+    (atomically, its folder created, with its spp and frame number in the metadata, after the
+    render's own ``metadata``; ``result``, where there is one, is written whole instead of
+    ``image``: its AOVs and metadata with it)."""
     if output is None:
         return image
     path = frame_path(output, frame)
     folder = os.path.dirname(path)
     if folder:
         os.makedirs(folder, exist_ok=True)
-    save_image_or_fallback(image, path, metadata={"warprt_spp": spp, "warprt_frame": frame})
+    save_image_or_fallback(image if result is None else result, path,
+                           metadata={**(metadata or {}), "warprt_spp": spp, "warprt_frame": frame})
     return path
 
 
@@ -208,9 +212,9 @@ def render_sequence(scene: Scene, output: str | None = None, frames=None, spp: i
                 if result.interrupted:
                     cut_short.append(f)
                     raise KeyboardInterrupt
-                image = {"color": result.image, **result.aovs} if aovs else result.image
+                image = RenderLayers({"color": result.image, **result.aovs}, result) if aovs else result.image
                 try:
-                    out.append(keep_frame(output, f, image, result.spp))
+                    out.append(keep_frame(output, f, image, result.spp, result=result))
                 except WriteError as e:  # a full disk: the sequence stops (the next frames would fail too)
                     raise frame_write_failed(e, f, frames, done) from None
                 done.append(f)

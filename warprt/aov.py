@@ -44,9 +44,11 @@ motion    (H,W,2) screen-space motion in pixels (x right, y down) of the visible
                   shutter open to shutter close (objects and camera both move)
 ========= ======= =====================================================================
 
-EXR channels (``image.save_image``): ``EXR_CHANNELS`` below: depth is ``Z`` and coverage ``A``
-(OpenEXR's standard names), the normal ``N.X N.Y N.Z``, the position ``P.X P.Y P.Z``, the
-albedo ``albedo.R albedo.G albedo.B``, ids as UINT channels holding id + 1 (0: none).
+EXR channels (``image.save_image``): ``EXR_CHANNELS`` below: the camera-space depth z is ``Z``
+and coverage ``A`` (OpenEXR's standard names), the distance along the ray ``distance.V``, the
+normal ``N.X N.Y N.Z``, the position ``P.X P.Y P.Z``, the albedo ``albedo.R albedo.G albedo.B``,
+the motion Nuke's ``forward.u forward.v`` (v up: the array's y negated), ids as UINT channels
+holding id + 1 (0: none) with a table of their names in the header.
 """
 
 from __future__ import annotations
@@ -73,19 +75,24 @@ class AovSpec:
     out: type  # numpy dtype of the result
     exr: tuple  # EXR channel names
     uint: bool = False  # written as a UINT channel holding id + 1 (0: none)
+    signs: tuple = ()  # per channel, the sign the EXR stores it with (empty: all +1)
+    half: bool = True  # stored as HALF in a 16-bit EXR (False: kept FLOAT, distances and positions)
 
 
-# one entry per AOV: the kernel writes the buffers of the same names
+# one entry per AOV: the kernel writes the buffers of the same names. EXR channels as compositors
+# read them: Z is camera-space depth (Nuke's depth.Z, what ZDefocus and deep tools take), A the
+# coverage (the alpha of the premultiplied RGBA), N and P world normals and positions, the motion
+# Nuke's forward layer (u right, v up: the y of the array turned over)
 AOVS = {
-    "depth": AovSpec(float, 1, np.float32, ("Z",)),
-    "z": AovSpec(float, 1, np.float32, ("z.V",)),
+    "depth": AovSpec(float, 1, np.float32, ("distance.V",), half=False),
+    "z": AovSpec(float, 1, np.float32, ("Z",), half=False),
     "normal": AovSpec(wp.vec3, 3, np.float32, ("N.X", "N.Y", "N.Z")),
     "albedo": AovSpec(wp.vec3, 3, np.float32, ("albedo.R", "albedo.G", "albedo.B")),
-    "position": AovSpec(wp.vec3, 3, np.float32, ("P.X", "P.Y", "P.Z")),
+    "position": AovSpec(wp.vec3, 3, np.float32, ("P.X", "P.Y", "P.Z"), half=False),
     "coverage": AovSpec(float, 1, np.float32, ("A",)),
     "object_id": AovSpec(int, 1, np.int32, ("object_id",), uint=True),
     "material": AovSpec(int, 1, np.int32, ("material",), uint=True),
-    "motion": AovSpec(wp.vec2, 2, np.float32, ("motion.X", "motion.Y")),
+    "motion": AovSpec(wp.vec2, 2, np.float32, ("forward.u", "forward.v"), signs=(1.0, -1.0)),
 }
 AOV_NAMES = tuple(AOVS)
 EXR_CHANNELS = {name: spec.exr for name, spec in AOVS.items()}

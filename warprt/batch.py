@@ -54,11 +54,12 @@ def _init_process_worker(stop) -> None:
 
 
 def _render_frame(scene: Scene, frame: int, spp, seed: int, device, workers, stop=None):
-    """Render one frame (runs inside a worker: thread, process or Ray task): (image, spp, interrupted)."""
+    """Render one frame (runs inside a worker: thread, process or Ray task): (image, spp,
+    interrupted, metadata)."""
     r = Renderer(frame_scene(scene, frame), device=device).render(
         spp=spp, seed=frame_seed(seed, frame), workers=workers, progress=False,
         stop=stop if stop is not None else _STOP)
-    return r.image, r.spp, r.interrupted
+    return r.image, r.spp, r.interrupted, r.metadata
 
 
 def ray_available() -> bool:
@@ -107,7 +108,7 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
         task = ray.remote(_render_frame).options(runtime_env={"env_vars": env} if env else None)
         scene_ref = ray.put(scene)
         rendered = ray.get([task.remote(scene_ref, f, spp, seed, device, render_workers) for f in frames])
-        return [keep_frame(output, f, image, n) for f, (image, n, _) in zip(frames, rendered)]
+        return [keep_frame(output, f, image, n, meta) for f, (image, n, _, meta) in zip(frames, rendered)]
     if executor == "thread":
         stop = threading.Event()
         pool = ThreadPoolExecutor(max_workers=max_workers)
@@ -120,13 +121,13 @@ def render_frames(scene: Scene, frames=None, spp: int | None = None, seed: int =
     cut_short: list[int] = []
 
     def collect(fut, f) -> None:
-        image, n, interrupted = fut.result()
+        image, n, interrupted, meta = fut.result()
         if interrupted:
             cut_short.append(f)
             return
         with _CtrlC() as ctrl_c:  # a Ctrl-C while writing lets the frame be written (and kept) first
             try:
-                kept[f] = keep_frame(output, f, image, n)
+                kept[f] = keep_frame(output, f, image, n, meta)
             except WriteError as e:  # a full disk: stop (the next frames would fail too)
                 raise frame_write_failed(e, f, frames, [g for g in frames if g in kept]) from None
         if ctrl_c.pressed:

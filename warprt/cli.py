@@ -10,7 +10,10 @@ reached: the output line says "interrupted: partial image", and the file carries
 ``warprt:partial = true`` and ``warprt_spp`` (PNG text chunks, EXR header attributes). Every file
 records what reproduces it (``RenderResult.reproduction``: ``warprt_reproduce`` holds the
 options, e.g. ``--spp 37 --planned-spp 1024 --seed 0 --sampler stratified`` for a render that a
-time budget stopped at 37 samples of a 1024-sample pattern). A signal while the images are
+time budget stopped at 37 samples of a 1024-sample pattern), and an EXR also the camera's
+``worldToCamera``/``worldToNDC`` and, with ids, their names (``warprt.results``). ``--exposure``
+brightens PNG and JPEG outputs; ``--bits 16`` writes a half-float EXR and a 16-bit PNG (and is
+refused for a JPEG before anything renders). A signal while the images are
 written is held until they are complete (one line says so; a second one abandons the files
 not yet written). Outputs whose disk cannot hold them are refused before rendering.
 ``render-sequence`` interrupted keeps every frame written so far (each is written as it finishes),
@@ -21,6 +24,7 @@ and exits 130 (143 for SIGTERM).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -64,6 +68,16 @@ def _non_negative_int(text: str) -> int:
     return _int_in(text, 0, None, "an integer >= 0")
 
 
+def _stops(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of stops, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number of stops, got {text}")
+    return v
+
+
 def _positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -77,10 +91,10 @@ def _positive_float(text: str) -> float:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="warprt", description="Ray trace scenes with NVIDIA Warp kernels.")
     sub = parser.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("render", help="render a TOML scene to .png or .exr")
+    r = sub.add_parser("render", help="render a TOML scene to .png, .jpg or .exr")
     r.add_argument("scene", help="scene file (TOML)")
     r.add_argument("-o", "--output", required=True, action="append",
-                   help="output image (.png or .exr); repeat for several formats")
+                   help="output image (.png, .jpg or .exr); repeat for several formats")
     r.add_argument("--spp", type=_spp, help="samples per pixel (default: the scene's)")
     r.add_argument("--seed", type=_seed, default=0, help="random seed, 0 to 2^32 - 1 (default 0)")
     r.add_argument("--planned-spp", type=_spp,
@@ -100,7 +114,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "--planned-spp is given; --no-adaptive renders every pixel at spp")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--aovs", type=_aov_list, default=[],
-                   help="extra EXR layers, comma separated: depth,z,normal,albedo,position,object_id,material,motion")
+                   help="extra EXR layers, comma separated: depth,z,normal,albedo,position,coverage,object_id,"
+                        "material,motion (coverage makes the EXR premultiplied RGBA)")
+    r.add_argument("--exposure", type=_stops, default=0.0,
+                   help="brighten .png and .jpg outputs by this many stops (x 2^stops) before the sRGB curve; "
+                        ".exr keeps the radiance (default 0)")
+    r.add_argument("--bits", type=int, choices=[8, 16, 32],
+                   help="bits per channel: 16 writes a half-float .exr and a 16-bit .png (default: 32-bit float "
+                        ".exr, 8-bit .png and .jpg)")
     q = sub.add_parser("render-sequence", help="render the frames of an animated scene to numbered images")
     q.add_argument("scene", help="scene file (TOML) with an [animation] table and keyframes")
     q.add_argument("-o", "--output", required=True,
@@ -145,7 +166,7 @@ def _frame_range(text: str) -> range:
 def _render(args: argparse.Namespace, run) -> int:
     from .aov import AOVS
     from .errors import WriteError
-    from .image import check_free_space, check_output, estimate_file_bytes, save_image_or_fallback
+    from .image import check_bits, check_free_space, check_output, estimate_file_bytes, save_image_or_fallback
     from .memory import check_memory
     from .render import Renderer
     from .scene.loader import load_scene
@@ -153,6 +174,8 @@ def _render(args: argparse.Namespace, run) -> int:
 
     for out in args.output:  # every output checked (and its writer imported) before anything is built
         check_output(out, create_folders=True)
+        if args.bits is not None:
+            check_bits(os.path.splitext(out)[1].lower(), args.bits, out)
     scene = load_scene(args.scene)
     cam = {k: v for k, v in (("width", args.width), ("height", args.height)) if v is not None}
     settings = {k: v for k, v in (("max_depth", args.max_depth), ("sampler", args.sampler)) if v is not None}
@@ -171,19 +194,17 @@ def _render(args: argparse.Namespace, run) -> int:
         raise RenderError("--planned-spp does not combine with --adaptive")
     width, height = scene.camera.width, scene.camera.height
     channels = sum(AOVS[a].channels for a in args.aovs)
-    check_free_space({out: estimate_file_bytes(out, width, height, channels) for out in args.output})
+    check_free_space({out: estimate_file_bytes(out, width, height, channels, args.bits) for out in args.output})
     start = time.perf_counter()
     renderer = Renderer(scene, device=args.device)
     check_memory(width, height, args.aovs, [os.path.splitext(o)[1] for o in args.output],
-                 film_on_host=renderer.device.is_cpu)  # before compiling or rendering
+                 film_on_host=renderer.device.is_cpu, bits=args.bits)  # before compiling or rendering
     # (the render loads the scene's kernel, or starts on the general one while it compiles)
     result = renderer.render(spp=args.spp, seed=args.seed, workers=args.workers, time_budget=args.time_budget,
                              progress=not args.no_progress, aovs=args.aovs or None, adaptive=args.adaptive,
                              planned_spp=args.planned_spp)
-    meta = result.reproduction()
-    if result.interrupted:  # a partial image replaces the output: mark it in the file (PNG text, EXR header)
-        meta["warprt:partial"] = "true"
-    image = {"color": result.image, **result.aovs} if result.aovs else result.image
+    # (the result brings its metadata: what reproduces it, warprt:partial = true for a partial
+    # image, the camera matrices, the background and the ids' names)
 
     # the samples are done: from here a signal waits for the files (a second one abandons those
     # not yet written), and a full disk sends the image to the temporary folder
@@ -202,7 +223,7 @@ def _render(args: argparse.Namespace, run) -> int:
                 if folder:
                     os.makedirs(folder, exist_ok=True)
                 try:
-                    save_image_or_fallback(image, out, metadata=meta)
+                    save_image_or_fallback(result, out, exposure=args.exposure, bits=args.bits)
                     written.append(out)
                 except WriteError as e:
                     failed.append(e)

@@ -20,7 +20,6 @@ from ._warp import build_once
 from .accel import PacketF
 
 NO_LIMIT = (1 << 31) - 1  # FilmData.limit of a pixel without a sample cap
-KEEP_SCRATCH_PIXELS = 1 << 20  # films up to this size keep adaptive sampling's scratch (Film.pilot_counts)
 
 
 @wp.struct
@@ -135,8 +134,8 @@ def packet_samples(r: PacketF, g: PacketF, b: PacketF, ar: PacketF, ag: PacketF,
 
 @build_once
 def _image_kernels():
-    """The film's kernels (both images and adaptive sampling's counts), defined together so that
-    the Warp module ``warprt_film`` always holds the same three (whichever is used first)."""
+    """The film's two image kernels, defined together so that the Warp module ``warprt_film``
+    always holds the same two (whichever is used first)."""
 
     @wp.kernel(module="warprt_film", enable_backward=False)
     def image_kernel(accum: wp.array(dtype=wp.vec3), inv_spp: float, width: int, out: wp.array3d(dtype=float)):
@@ -159,17 +158,7 @@ def _image_kernels():
         out[y, x, 1] = c[1]
         out[y, x, 2] = c[2]
 
-    @wp.kernel(module="warprt_film", enable_backward=False)
-    def counts_kernel(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
-                      n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float,
-                      ridge16: float, spp: int, n_min: int, cap: float, ys: wp.array(dtype=float),
-                      vs: wp.array(dtype=float), nb: wp.array(dtype=float),
-                      shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
-                      counts: wp.array(dtype=int)):
-        pilot_counts(accum, accum_sq, width, height, n0, inv_n, unbias, near_weight, keep, contrast4, ridge16, spp,
-                     n_min, cap, ys, vs, nb, shares, where, bucket, counts)
-
-    return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel, counts=counts_kernel)
+    return SimpleNamespace(plain=image_kernel, counted=counted_image_kernel)
 
 
 class Film:
@@ -194,7 +183,6 @@ class Film:
         # took 0.1-0.2 ms each)
         self._limit = self.data.limit.numpy() if self.data.limit.device.is_cpu else None
         self.counts: np.ndarray | None = None  # per-pixel sample counts (adaptive sampling)
-        self._scratch: list | None = None  # (``pilot_counts``' arrays)
 
     def reset_claims(self) -> None:
         """No block of rows handed out yet (before each CPU pass whose launches claim them)."""
@@ -219,26 +207,6 @@ class Film:
             self._limit[:] = self.counts
         else:
             self.data.limit.assign(self.counts)
-
-    def pilot_counts(self, n0: int, spp: int, n_min: int, cap: float) -> np.ndarray:
-        """``adaptive_counts`` of a CPU film, by one single-thread pass of native code (numpy's
-        dozens of passes took 1-2 ms while every worker waited). Its scratch, 32 bytes a pixel, is
-        kept with a film of up to KEEP_SCRATCH_PIXELS (the first touch of fresh pages is part of
-        what a small render's counts cost), made anew for a larger one."""
-        scratch = self._scratch
-        if scratch is None:
-            n = self.width * self.height
-            scratch = ([wp.empty(n, dtype=float, device=self.device) for _ in range(3)]
-                       + [wp.empty(n, dtype=wp.float64, device=self.device)]
-                       + [wp.empty(n, dtype=int, device=self.device) for _ in range(3)])
-            if n <= KEEP_SCRATCH_PIXELS:
-                self._scratch = scratch
-        wp.launch(_image_kernels().counts, dim=1, device=self.device,
-                  inputs=[self.data.accum, self.data.accum_sq, self.width, self.height, int(n0),
-                          float(np.float32(1.0 / n0)), float(np.float32(n0 / max(n0 - 1, 1))),
-                          _near_weight(n0), _KEEP, _CONTRAST4, _RIDGE16, int(spp), int(n_min), float(cap),
-                          *scratch])
-        return scratch[-1].numpy().copy()
 
     def image(self, spp: int) -> np.ndarray:
         """The mean of the samples, (H, W, 3) float32 on the host (each pixel over its own count
@@ -305,270 +273,13 @@ ADAPTIVE_CONTRAST = 0.125
 # (and the near weight of 12) lines a pixel wide, which the contrast across a pixel misses, get
 # their samples, and scenes without such lines keep their error within a few percent
 ADAPTIVE_RIDGE = 0.25
-_KEEP = 1.0 - ADAPTIVE_CONTRAST  # (these exact in float32, as the native pass takes them)
+_KEEP = 1.0 - ADAPTIVE_CONTRAST  # (the float32 factors of _deviations and _contrast)
 _CONTRAST4 = ADAPTIVE_CONTRAST / 4.0
 _RIDGE16 = ADAPTIVE_RIDGE / 16.0
 ROUND_BUCKETS = 4096  # _round_keeping_sum's histogram (a few parts per bucket at 65k pixels)
 
 
-# Adaptive sampling's counts (``adaptive_counts``) in one pass over the film on the CPU, between
-# the pilot and the main passes while every worker waits (numpy's dozens of passes over the film
-# took 1-2 ms): ``_counts``' numpy operations in the same order on the same values, so the same
-# counts. Each pixel's luminance y and its variance (or y², for a pilot of one sample), then its
-# weighted sums over the other colour's 12 neighbours of its 5 × 5 window (ADAPTIVE_NEIGHBOURS, in
-# that order, 0 outside the image), the contrast and ridge across it and its deviation
-# (``_deviations``, ``_contrast``; ``keep`` = 1 - ADAPTIVE_CONTRAST, ``contrast4`` =
-# ADAPTIVE_CONTRAST / 4, ``ridge16`` = ADAPTIVE_RIDGE / 16), then each colour's shares in float64
-# and their rounding (``_round_keeping_sum``: a histogram of the fractional parts).
-_PILOT_COUNTS = r"""
-#if !defined(__CUDA_ARCH__)
-const float* acc = reinterpret_cast<const float*>(accum.data);
-const float* sq = accum_sq.data;
-float* Y = ys.data;
-float* V = vs.data;
-float* out = nb.data;
-const int n = width * height;
-for (int i = 0; i < n; ++i) {
-    float y = acc[3 * i] * 0.2126f;
-    const float y1 = acc[3 * i + 1] * 0.7152f;
-    y = y + y1;
-    const float y2 = acc[3 * i + 2] * 0.0722f;
-    y = y + y2;
-    Y[i] = y * inv_n;
-}
-if (n0 >= 2) {
-    for (int i = 0; i < n; ++i) {
-        float v = sq[i] * inv_n;
-        const float yy = Y[i] * Y[i];
-        v = v - yy;
-        v = v < 0.0f ? 0.0f : v;  // (numpy's maximum keeps a NaN)
-        V[i] = v * unbias;
-    }
-} else {
-    for (int i = 0; i < n; ++i) V[i] = Y[i] * Y[i];
-}
-// the contrast and the ridge across a pixel (``_contrast``) from its neighbours' differences
-// (right - left, below - above) and their ridge (left + right - above - below)
-auto edge_terms = [&](float dh, float dv, float rg) -> float {
-    float t = dh * dh;
-    const float t2 = dv * dv;
-    t = t + t2;
-    t = t * contrast4;
-    float q = rg * rg;
-    q = q * ridge16;
-    return t + q;
-};
-// ... at pixel (r, c) near the image's edges: an axis's difference 0 where a neighbour is missing
-// on it, the ridge where any is
-auto contrast = [&](int r, int c) -> float {
-    float dh = 0.0f, dv = 0.0f, rg = 0.0f;
-    const bool across = c >= 1 && c + 1 < width, down = r >= 1 && r + 1 < height;
-    if (across) dh = Y[r * width + c + 1] - Y[r * width + c - 1];
-    if (down) dv = Y[(r + 1) * width + c] - Y[(r - 1) * width + c];
-    if (across && down) {
-        rg = Y[r * width + c - 1] + Y[r * width + c + 1];
-        rg = rg - Y[(r - 1) * width + c];
-        rg = rg - Y[(r + 1) * width + c];
-    }
-    return edge_terms(dh, dv, rg);
-};
-// a pixel's deviation from its neighbours' weighted sums: near and far each added up in
-// ADAPTIVE_NEIGHBOURS' order from 0, a neighbour outside the image adding 0
-auto finish = [&](float near_v, float far_v, float near_y, float far_y, float wt, float con) -> float {
-    float sv = near_weight * near_v;
-    sv = sv + far_v;
-    sv = sv / wt;
-    float d;
-    if (n0 >= 2) {  // (con: the contrast and ridge across the pixel)
-        d = sv * keep;
-        d = d + con;
-    } else {  // (one sample: the spread of the neighbours' values)
-        float sy = near_weight * near_y;
-        sy = sy + far_y;
-        sy = sy / wt;
-        const float m2 = sy * sy;
-        d = sv - m2;
-        d = d < 0.0f ? 0.0f : d;
-    }
-    return sqrtf(d);
-};
-// near the image's edges, each neighbour checked
-static const int DR[12] = {@DR@};
-static const int DC[12] = {@DC@};
-static const bool NEAR[12] = {@NEAR@};
-auto edge_pixel = [&](int r, int c) {
-    float near_v = 0.0f, far_v = 0.0f, near_y = 0.0f, far_y = 0.0f, near_w = 0.0f, far_w = 0.0f;
-    for (int k = 0; k < 12; ++k) {
-        const int rr = r + DR[k], cc = c + DC[k];
-        const bool in = rr >= 0 && rr < height && cc >= 0 && cc < width;
-        const float v = in ? V[rr * width + cc] : 0.0f;
-        const float y = in ? Y[rr * width + cc] : 0.0f;
-        const float w = in ? 1.0f : 0.0f;
-        if (NEAR[k]) {
-            near_v = near_v + v; near_y = near_y + y; near_w = near_w + w;
-        } else {
-            far_v = far_v + v; far_y = far_y + y; far_w = far_w + w;
-        }
-    }
-    float wt = near_weight * near_w;
-    wt = wt + far_w;
-    wt = wt < 1.0f ? 1.0f : wt;
-    out[r * width + c] = finish(near_v, far_v, near_y, far_y, wt, n0 >= 2 ? contrast(r, c) : 0.0f);
-};
-// inside, every neighbour in the image: straight-line sums over rows r - 2 ... r + 2
-float wt_in = near_weight * 4.0f;
-wt_in = wt_in + 8.0f;
-for (int r = 0; r < height; ++r) {
-    if (r < 2 || r >= height - 2 || width < 5) {
-        for (int c = 0; c < width; ++c) edge_pixel(r, c);
-        continue;
-    }
-    edge_pixel(r, 0);
-    edge_pixel(r, 1);
-    const float* v0 = V + r * width;
-    const float* y0 = Y + r * width;
-    float* o = out + r * width;
-    if (n0 >= 2) {
-        for (int c = 2; c < width - 2; ++c) {
-@SUMS_V@
-            float sv = near_weight * near_v;
-            sv = sv + far_v;
-            sv = sv / wt_in;
-            const float dh = y0[c + 1] - y0[c - 1], dv = y0[width + c] - y0[c - width];
-            float rg = y0[c - 1] + y0[c + 1];
-            rg = rg - y0[c - width];
-            rg = rg - y0[width + c];
-            const float t = edge_terms(dh, dv, rg);
-            float d = sv * keep;
-            d = d + t;
-            o[c] = sqrtf(d);
-        }
-    } else {
-        for (int c = 2; c < width - 2; ++c) {
-@SUMS_V@
-@SUMS_Y@
-            o[c] = finish(near_v, far_v, near_y, far_y, wt_in, 0.0f);
-        }
-    }
-    edge_pixel(r, width - 2);
-    edge_pixel(r, width - 1);
-}
-// each colour's shares and their rounding (adaptive_counts and _round_keeping_sum, float64, the
-// sums added in order): the colour's pixels in flat order, then each pixel's count
-double* S = shares.data;
-int* P = where.data;
-int* B = bucket.data;
-int* N = counts.data;
-int hist[@BUCKETS@];
-// floor of a share (at least 1, below 2^31) or of a sum of their fractional parts
-auto down = [](double x) -> double { return (double)(long long)x; };
-for (int col = 0; col < 2; ++col) {
-    int m = 0;
-    for (int r = 0; r < height; ++r)
-        for (int c = (r + col) & 1; c < width; c += 2) {
-            P[m] = r * width + c;
-            S[m] = (double)out[r * width + c];
-            ++m;
-        }
-    double total = 0.0;
-    for (int k = 0; k < m; ++k) total = total + S[k];
-    if (!(total > 0.0 && total - total == 0.0)) {  // (zero, NaN or infinite: the budget as it is)
-        for (int k = 0; k < m; ++k) N[P[k]] = spp;
-        continue;
-    }
-    const double scale = (double)(spp - n_min) * (double)m;
-    double sum_x = 0.0, sum_base = 0.0;
-    for (int k = 0; k < m; ++k) {
-        const double t = scale * S[k];
-        double x = (double)n_min + t / total;
-        x = x < cap ? x : cap;
-        S[k] = x;
-        sum_x = sum_x + x;
-        sum_base = sum_base + down(x);
-    }
-    // extra: round(sum_x - sum_base), halves to even
-    const double d = sum_x - sum_base;
-    double e = down(d);
-    const double half = d - e;
-    if (half > 0.5 || (half == 0.5 && ((long long)e & 1) != 0)) e = e + 1.0;
-    const int extra = (int)e;
-    for (int k = 0; k < m; ++k) N[P[k]] = (int)down(S[k]);
-    if (extra <= 0) continue;
-    for (int j = 0; j < @BUCKETS@; ++j) hist[j] = 0;
-    for (int k = 0; k < m; ++k) {
-        const double f = S[k] - down(S[k]);
-        hist[(int)(f * (double)(@BUCKETS@ - 1))] += 1;
-    }
-    int from_top = 0, b = 0;
-    for (int j = @BUCKETS@ - 1; j >= 0; --j) {
-        if (from_top + hist[j] >= extra) { b = j; break; }
-        from_top += hist[j];
-    }
-    const int rest = extra - from_top;  // (from_top: the parts in the buckets above b)
-    int nb_b = 0;
-    for (int k = 0; k < m; ++k) {
-        const double f = S[k] - down(S[k]);
-        const int q = (int)(f * (double)(@BUCKETS@ - 1));
-        N[P[k]] += q > b ? 1 : 0;  // (without branches: which side a part falls is a coin toss)
-        B[nb_b] = k;
-        nb_b += q == b ? 1 : 0;
-    }
-    // bucket b's parts, largest first and then the lower index: heapsort, then the first rest
-    auto before = [&](int a, int z) -> bool {
-        const double fa = S[a] - down(S[a]), fz = S[z] - down(S[z]);
-        return fa > fz || (fa == fz && a < z);
-    };
-    auto sift = [&](int root, int end) {
-        while (2 * root + 1 < end) {
-            int child = 2 * root + 1;
-            if (child + 1 < end && before(B[child], B[child + 1])) child += 1;
-            if (!before(B[root], B[child])) return;
-            const int t = B[root]; B[root] = B[child]; B[child] = t;
-            root = child;
-        }
-    };
-    for (int start = nb_b / 2 - 1; start >= 0; --start) sift(start, nb_b);
-    for (int end = nb_b - 1; end > 0; --end) {
-        const int t = B[0]; B[0] = B[end]; B[end] = t;
-        sift(0, end);
-    }
-    for (int k = 0; k < rest && k < nb_b; ++k) N[P[B[k]]] += 1;
-}
-#endif
-"""
-
-
-def _sums_code(a: str) -> str:
-    """``_PILOT_COUNTS``' straight-line neighbour sums of row pointer ``a``0 (``V`` or ``Y``'s row r)."""
-    out = []
-    for part, near in (("near", True), ("far", False)):
-        out.append(f"            float {part}_{a.lower()} = 0.0f;")
-        for dr, dc in ADAPTIVE_NEIGHBOURS:
-            if (abs(dr) + abs(dc) == 1) == near:
-                out.append(f"            {part}_{a.lower()} = {part}_{a.lower()} + {a.lower()}0[{dr} * width + c + {dc}];")
-    return "\n".join(out)
-
-
-_PILOT_COUNTS = (_PILOT_COUNTS.replace("@DR@", ", ".join(str(a) for a, b in ADAPTIVE_NEIGHBOURS))
-               .replace("@DC@", ", ".join(str(b) for a, b in ADAPTIVE_NEIGHBOURS))
-               .replace("@NEAR@", ", ".join("true" if abs(a) + abs(b) == 1 else "false" for a, b in ADAPTIVE_NEIGHBOURS))
-               .replace("@SUMS_V@", _sums_code("V")).replace("@SUMS_Y@", _sums_code("Y"))
-               .replace("@BUCKETS@", str(ROUND_BUCKETS)))
-
-
-@wp.func_native(_PILOT_COUNTS)
-def pilot_counts(accum: wp.array(dtype=wp.vec3), accum_sq: wp.array(dtype=float), width: int, height: int,
-                 n0: int, inv_n: float, unbias: float, near_weight: float, keep: float, contrast4: float,
-                 ridge16: float, spp: int, n_min: int, cap: float,
-                 ys: wp.array(dtype=float), vs: wp.array(dtype=float), nb: wp.array(dtype=float),
-                 shares: wp.array(dtype=wp.float64), where: wp.array(dtype=int), bucket: wp.array(dtype=int),
-                 counts: wp.array(dtype=int)):
-    """``adaptive_counts`` into ``counts`` (see above; the other arrays are scratch, ``nb`` the
-    deviations)."""
-    ...
-
-
-def adaptive_counts(film: Film, n0: int, spp: int, native: bool = True) -> np.ndarray:
+def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     """Per-pixel sample counts averaging ``spp``, from a film holding the first ``n0`` samples of
     every pixel (the pilot, which each count includes).
 
@@ -588,17 +299,12 @@ def adaptive_counts(film: Film, n0: int, spp: int, native: bool = True) -> np.nd
     ridge keep an edge's or a thin line's samples on the pixels it runs through. Within each
     colour the budget is shared in proportion to those deviations (Neyman allocation: the summed
     variance Σ σ²/N of the pixel means is least for a given total), with every pixel at least
-    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp; the normaliser of a
-    colour is itself a function of the other colour's samples. On the CPU they come from native
-    code (``Film.pilot_counts``) unless ``native`` is False (``warprt.fast``: native_counts)."""
+    max(n0, spp / ADAPTIVE_MIN_SHARE) and at most ADAPTIVE_MAX_FACTOR × spp (what a capped pixel
+    would take beyond is shared among the others, ``_capped_shares``); the normaliser of a
+    colour is itself a function of the other colour's samples. Computed with numpy on the host (a
+    CUDA film's sums copied there), each float32 and float64 operation in a fixed order, so that
+    a film gives the same counts on every device and machine."""
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
-    if native and film.data.accum.device.is_cpu:  # (the same numbers by native code, see pilot_counts)
-        return film.pilot_counts(n0, spp, n_min, ADAPTIVE_MAX_FACTOR * spp)
-    return _counts(film, n0, spp, n_min)
-
-
-def _counts(film: Film, n0: int, spp: int, n_min: int) -> np.ndarray:
-    """``adaptive_counts`` with numpy (a CUDA film's, copied to the host)."""
     h, w = film.height, film.width
     _, colours = _adaptive_layout(h, w, _near_weight(n0))
     nb = _deviations(film, n0)
@@ -607,9 +313,35 @@ def _counts(film: Film, n0: int, spp: int, n_min: int) -> np.ndarray:
         dev = nb[mine].astype(np.float64)  # the shares in float64: the budget must add up exactly
         total = _sum_in_order(dev)
         if total > 0.0 and math.isfinite(total):
-            share = np.minimum(n_min + float(spp - n_min) * mine.size * dev / total, ADAPTIVE_MAX_FACTOR * spp)
-            counts[mine] = _round_keeping_sum(share)
+            counts[mine] = _round_keeping_sum(_capped_shares(dev, total, n_min, spp))
     return counts
+
+
+def _capped_shares(dev: np.ndarray, total: float, n_min: int, spp: int) -> np.ndarray:
+    """Each pixel's n_min plus its share of the colour's budget (spp − n_min) × M, in proportion
+    to ``dev`` (summing to ``total`` > 0), float64. A share above ADAPTIVE_MAX_FACTOR × spp is
+    held there and what it would have taken beyond is shared out again, in the same proportion,
+    among the pixels under the cap (repeated while one passes it): the budget is spent whole,
+    whatever a few very bright pixels (a light in view) ask for. With no pixel at the cap the
+    shares are n_min + budget × dev / total."""
+    cap = float(ADAPTIVE_MAX_FACTOR * spp)
+    budget = float(spp - n_min) * dev.size
+    left = budget
+    capped = np.zeros(dev.size, dtype=bool)
+    while True:
+        share = n_min + left * dev / total
+        over = share > cap
+        over &= ~capped
+        if not over.any():
+            break
+        capped |= over
+        total = _sum_in_order(dev[~capped])
+        left = budget - (cap - n_min) * int(np.count_nonzero(capped))
+        if not total > 0.0 or not left > 0.0:  # (every pixel left has no deviation, or no budget)
+            share = np.full(dev.size, float(n_min))
+            break
+    share[capped] = cap
+    return np.minimum(share, cap)
 
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
@@ -617,16 +349,15 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
 def _deviations(film: Film, n0: int) -> np.ndarray:
     """Each pixel's deviation for ``adaptive_counts`` from a film holding ``n0`` samples of every
-    pixel, float32, with numpy (on the CPU ``Film.pilot_counts`` computes the same numbers): the
-    root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS with the contrast and the ridge
-    across it (``_contrast``), or with one sample a pixel, the weighted spread of their values
-    about their weighted mean."""
+    pixel, float32, with numpy: the root of the weighted mean variance of its ADAPTIVE_NEIGHBOURS
+    with the contrast and the ridge across it (``_contrast``), or with one sample a pixel, the
+    weighted spread of their values about their weighted mean."""
     h, w = film.height, film.width
     near = _near_weight(n0)
     weights = _adaptive_layout(h, w, near)[0]
     acc = film.data.accum.numpy()
-    y = acc[:, 0] * _LUMA[0]  # (each pixel's luminance in this order, as the CPU's pass)
-    y += acc[:, 1] * _LUMA[1]
+    y = acc[:, 0] * _LUMA[0]  # (each product and sum rounded once, in this order: a matrix product's
+    y += acc[:, 1] * _LUMA[1]  # BLAS may fuse or reorder them, machine by machine)
     y += acc[:, 2] * _LUMA[2]
     y *= np.float32(1.0 / n0)
     if n0 >= 2:
@@ -666,7 +397,9 @@ def _contrast(y: np.ndarray, h: int, w: int) -> np.ndarray:
 
 
 def _sum_in_order(x: np.ndarray) -> float:
-    """Σ x added first to last (numpy's sum adds in pairs), as ``pilot_counts`` adds."""
+    """Σ x added first to last: a sum whose order is fixed by the array alone (numpy's own sum adds
+    in pairs, in blocks that depend on its build's unrolling and vector width), so that a colour's
+    total, its shares and their rounding are the same wherever numpy runs."""
     return float(np.cumsum(x)[-1]) if x.size else 0.0
 
 

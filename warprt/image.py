@@ -1,9 +1,26 @@
-"""Writing images: float32 EXR (linear) and 8-bit PNG (sRGB), always atomically.
+"""Writing images: linear EXR (float32 or half), sRGB PNG (8 or 16 bits) and JPEG, always atomically.
 
-* ``.exr``: float32 linear RGB through OpenEXR (ZIP compression); extra header attributes
-  (``metadata``) are stored as strings, ints or floats, e.g. the samples per pixel reached.
-* ``.png``: ``metadata`` goes into text (tEXt) chunks, as strings; linear values are clamped to [0, 1] (values above 1 clip to white: no tone mapping),
-  NaN becomes 0, then the sRGB transfer curve is applied and values are rounded to 8 bits.
+:func:`save_image` takes an image array, a result (:class:`warprt.RenderResult`, a batch's
+``frame()``, the dict of AOVs ``warprt.render(..., aovs=[...])`` returns) or a plain dict of
+layers, and writes the metadata it has (:mod:`warprt.results`) with the ``metadata`` given.
+
+* ``.exr``: linear radiance through OpenEXR (ZIP compression), float32, or half float with
+  ``bits=16`` (colour, alpha, normals, albedo and motion; distances and positions stay float32,
+  ids UINT). With the coverage AOV the colour is **premultiplied RGBA**: ``A`` is the coverage
+  (the fraction of the pixel's samples that hit a surface) and ``RGB`` the light of those samples
+  alone (the render's colour less (1 − A) × the background), so a compositor's "over" adds its
+  own plate once. The AOVs take the names compositors read (``aov.EXR_CHANNELS``: ``Z``
+  camera-space depth, ``N.X``..., ``P.X``..., ``forward.u``/``forward.v`` motion, ids as UINT
+  id + 1 with their name tables in the header); the header holds the camera's standard
+  ``worldToCamera`` and ``worldToNDC`` matrices and ``warprt_exr_layout`` = 2.
+  :func:`read_exr` reads this layout and warprt's earlier one (without the layout attribute:
+  ``Z`` the distance along the ray, ``z.V``, ``motion.X``/``motion.Y``, RGB not premultiplied).
+* ``.png``: the sRGB view (:func:`warprt.colour.view`: ``exposure`` in stops, then the sRGB
+  curve on values clipped to [0, 1]), rounded to 8 bits (Pillow) or, with ``bits=16``, to 16
+  bits (a 48-bit RGB PNG, which Pillow cannot write: :func:`_png16`); ``metadata`` goes into
+  text chunks, as strings (arrays as JSON lists). NaN becomes 0.
+* ``.jpg`` / ``.jpeg``: the same 8-bit view through Pillow (quality 95, no chroma subsampling);
+  ``metadata`` goes into the comment as a JSON object.
 
 A file is written to a temporary name in the destination folder (``.NAME.PID.XXXXXXXX.partial``,
 which matches no ``*.exr``/``*.png`` glob) and renamed into place, so a crash or Ctrl-C never
@@ -24,6 +41,7 @@ outputs whose disk cannot hold them.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import re
 import stat
@@ -35,8 +53,16 @@ import numpy as np
 from .errors import RenderError, WriteError
 from .signals import Deferred
 
-FORMATS = (".exr", ".png")
+FORMATS = (".exr", ".png", ".jpg", ".jpeg")
+FORMATS_TEXT = ".exr, .png or .jpg"
+# bits per channel each format writes (the first is its default): EXR 32 (float) or 16 (half)
+BITS = {".exr": (32, 16), ".png": (8, 16), ".jpg": (8,), ".jpeg": (8,)}
 EXR_MAGIC = b"\x76\x2f\x31\x01"  # the first four bytes of every OpenEXR file
+EXR_LAYOUT = 2  # warprt_exr_layout of the files written here (absent: the earlier layout)
+# the earlier layout's channels where they differ (read_exr reads both)
+LEGACY_EXR = {"depth": ("Z",), "z": ("z.V",), "motion": ("motion.X", "motion.Y")}
+HALF_MAX = 65504.0  # the largest finite half float
+JPEG_QUALITY = 95
 
 
 def _check_image(image) -> np.ndarray:
@@ -50,29 +76,31 @@ def _check_image(image) -> np.ndarray:
     return a.astype(np.float32, copy=False)
 
 
-def _srgb8(x: np.ndarray) -> np.ndarray:
-    x = np.nan_to_num(np.asarray(x, dtype=np.float32), nan=0.0, posinf=1.0, neginf=0.0)
-    x = np.clip(x, 0.0, 1.0)
-    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
-    return np.clip(np.round(s * 255.0), 0, 255).astype(np.uint8)
-
-
 SRGB_CHUNK_PIXELS = 1 << 20  # pixels converted at a time: the float temporaries stay a few MB
 
 
-def linear_to_srgb8(image: np.ndarray, chunk_rows: int | None = None) -> np.ndarray:
-    """Linear float to 8-bit sRGB, in chunks of rows, so the float temporaries never span the whole
-    image (the output is the only full-size allocation); elementwise, so the bytes do not depend
-    on the chunking."""
+def encode_display(image: np.ndarray, bits: int = 8, exposure: float = 0.0, chunk_rows: int | None = None) -> np.ndarray:
+    """Linear float to the sRGB view (:func:`warprt.colour.view`) rounded to ``bits`` (8: uint8,
+    16: uint16), in chunks of rows, so the float temporaries never span the whole image (the
+    output is the only full-size allocation); elementwise, so the values do not depend on the
+    chunking."""
+    from .colour import quantize, view
+
     image = np.asarray(image)
+    dtype = np.float32 if bits == 8 else np.float64
     if image.ndim < 2 or image.shape[0] == 0:
-        return _srgb8(image)
+        return quantize(view(image, exposure, dtype), bits)
     row = max(1, int(np.prod(image.shape[1:-1] if image.ndim > 2 else image.shape[1:])))
     rows = chunk_rows or max(1, SRGB_CHUNK_PIXELS // row)
-    out = np.empty(image.shape, dtype=np.uint8)
+    out = np.empty(image.shape, dtype=np.uint8 if bits == 8 else np.uint16)
     for r0 in range(0, image.shape[0], rows):
-        out[r0:r0 + rows] = _srgb8(image[r0:r0 + rows])
+        out[r0:r0 + rows] = quantize(view(image[r0:r0 + rows], exposure, dtype), bits)
     return out
+
+
+def linear_to_srgb8(image: np.ndarray, chunk_rows: int | None = None) -> np.ndarray:
+    """Linear float to 8-bit sRGB (:func:`encode_display` at exposure 0)."""
+    return encode_display(image, 8, 0.0, chunk_rows)
 
 
 def _umask() -> int:
@@ -98,7 +126,7 @@ def check_output(path: str | os.PathLike, create_folders: bool = False) -> str:
     path = _check_path(path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
-        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
+        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use {FORMATS_TEXT}")
     import_writer(ext, path)
     if os.path.isdir(path):
         raise RenderError(f"{path}: is a folder, not an image file")
@@ -132,6 +160,8 @@ def import_writer(ext: str, path: str = "") -> None:
             import OpenEXR  # noqa: F401
         elif ext == ".png":
             from PIL import Image, PngImagePlugin  # noqa: F401
+        elif ext in (".jpg", ".jpeg"):
+            from PIL import Image, JpegImagePlugin  # noqa: F401
     except ImportError as e:
         package = "OpenEXR" if ext == ".exr" else "Pillow"
         raise RenderError(f"{path or ext}: writing {ext} files needs {package} ({e}); "
@@ -139,7 +169,8 @@ def import_writer(ext: str, path: str = "") -> None:
 
 
 # bytes per pixel of a file at most (no compression): the EXR's float32 RGB and each AOV channel
-# (4 bytes, float32 or uint32), the PNG's 8-bit RGB; plus headers and the compressors' worst case
+# (4 bytes, float32 or uint32; half floats take less), the PNG's 8-bit RGB (16-bit: 6), a JPEG's
+# (at quality 95 well under its 3 bytes of RGB); plus headers and the compressors' worst case
 EXR_PIXEL_BYTES = 12
 EXR_CHANNEL_BYTES = 4
 PNG_PIXEL_BYTES = 3
@@ -147,11 +178,14 @@ FILE_OVERHEAD = 64 * 1024  # header, offset tables
 INCOMPRESSIBLE = 1.01  # zlib's worst case adds a fraction of a percent to incompressible data
 
 
-def estimate_file_bytes(path: str, width: int, height: int, aov_channels: int = 0) -> int:
+def estimate_file_bytes(path: str, width: int, height: int, aov_channels: int = 0, bits: int | None = None) -> int:
     """The largest size a ``width`` × ``height`` image written to ``path`` can take (an EXR with
-    ``aov_channels`` extra channels; a PNG holds the colour only)."""
-    per_pixel = PNG_PIXEL_BYTES if os.path.splitext(os.fspath(path))[1].lower() == ".png" else \
-        EXR_PIXEL_BYTES + EXR_CHANNEL_BYTES * aov_channels
+    ``aov_channels`` extra channels, and the alpha; a PNG or JPEG holds the colour only)."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext == ".exr":
+        per_pixel = EXR_PIXEL_BYTES + EXR_CHANNEL_BYTES * aov_channels
+    else:
+        per_pixel = PNG_PIXEL_BYTES * (2 if bits == 16 else 1)
     return int(per_pixel * int(width) * int(height) * INCOMPRESSIBLE) + FILE_OVERHEAD
 
 
@@ -316,20 +350,30 @@ def _write_error(path: str, folder: str, e: BaseException) -> WriteError:
     return WriteError(f"{path}: cannot be written: {reason} ({size_text(free)} free on its disk)", path, free)
 
 
-def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None) -> None:
-    """Write ``image`` (H, W, 3 linear float) to ``path``; the format follows the extension.
+def save_image(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None, *,
+               exposure: float = 0.0, bits: int | None = None) -> None:
+    """Write ``image`` to ``path``; the format follows the extension (``.exr``, ``.png``, ``.jpg``).
 
-    ``image`` may also be a dict of layers: ``{"color": rgb, "depth": ..., "normal": ...}`` (as
-    returned by ``render(..., aovs=[...])``, numpy or ``wp.array``). An EXR then holds every
-    layer: warprt's AOVs under the channel names of ``aov.EXR_CHANNELS`` (``Z`` depth, ``A``
-    coverage, ``N.X``..., ids as UINT holding id + 1), other layers as ``layer.X`` / ``layer.Y`` /
-    ``layer.Z`` (``layer.V`` for one channel); a PNG holds the colour.
+    ``image`` is a linear float image ((H, W, 3), (H, W) grey or (H, W, 4) RGBA taken as
+    premultiplied; numpy or ``wp.array``), a result (:class:`warprt.RenderResult`,
+    ``BatchResult.frame(w, c)``, a batch of one image, the dict ``render(..., aovs=[...])``
+    returns), whose AOVs and metadata come with it, or a plain dict of layers ``{"color": rgb,
+    "depth": ..., "mine": ...}``. An EXR holds every layer: warprt's AOVs under the channel names
+    of ``aov.EXR_CHANNELS`` (with the coverage AOV the colour is premultiplied RGBA, see the
+    module docstring; a plain dict has no background to take out, so its colour is written as
+    it is), other layers as ``layer.X`` / ``layer.Y`` / ... (``layer.V`` for one channel); a PNG
+    or JPEG holds the colour.
+
+    ``metadata``: header attributes (EXR), text chunks (PNG) or comment entries (JPEG), added to
+    the result's own (and overriding them). ``exposure`` (stops): PNG and JPEG show the image
+    times 2^exposure (an EXR keeps the radiance). ``bits=16``: a half-float EXR or a 16-bit PNG
+    (default: float32 EXR, 8-bit PNG and JPEG).
 
     A Ctrl-C during the write is held until the file is complete (then raised); a second one
     abandons it. A full disk, quota or I/O error raises :class:`warprt.errors.WriteError`.
     """
     with Deferred(abandon_on=2, deliver=True):
-        _save_image(image, path, metadata)
+        _save_image(image, path, metadata, exposure, bits)
 
 
 def _check_path(path, what: str = "an image path") -> str:
@@ -338,59 +382,189 @@ def _check_path(path, what: str = "an image path") -> str:
     return os.fspath(path)
 
 
-def _save_image(image, path, metadata) -> None:
+def check_bits(ext: str, bits, path: str = "") -> int:
+    """The bits per channel of a ``ext`` file (None: the format's default), else a RenderError."""
+    allowed = BITS[ext]
+    if bits is None:
+        return allowed[0]
+    if isinstance(bits, bool) or bits not in allowed:
+        raise RenderError(f"{path or ext}: bits must be {' or '.join(map(str, sorted(allowed)))} for {ext} files "
+                          f"(16: {'half float' if ext == '.exr' else 'a 16-bit PNG'}), got {bits!r:.60}"
+                          if len(allowed) > 1 else f"{path or ext}: {ext} files are 8 bits per channel, got bits={bits!r:.60}")
+    return int(bits)
+
+
+def _host(x) -> np.ndarray:
+    """An array on the host (a ``wp.array`` copied from its device)."""
+    return np.asarray(x.numpy() if hasattr(x, "numpy") and not isinstance(x, np.ndarray) else x)
+
+
+def _unpack(image, path: str) -> tuple[object, dict | None, dict]:
+    """(colour, layers or None, metadata) of what ``save_image`` was given."""
+    if callable(getattr(image, "frame", None)) and hasattr(image, "color"):  # a BatchResult
+        worlds, cameras = image.color.shape[:2]
+        if worlds * cameras != 1:
+            raise RenderError(f"{path}: a batch holds {worlds} worlds x {cameras} cameras of images; save one "
+                              f"with save_image(result.frame(world, camera), path)")
+        image = image.frame(0, 0)
+    if all(hasattr(image, a) for a in ("image", "aovs", "metadata")):  # a result (RenderLayers too)
+        return image.image, dict(image.aovs), dict(image.metadata)
+    if isinstance(image, Mapping):
+        if "color" not in image:
+            raise RenderError(f"{path}: a dict of layers needs a 'color' entry, got {sorted(image)}")
+        return image["color"], {k: v for k, v in image.items() if k != "color"}, {}
+    return image, None, {}
+
+
+def _text(value) -> str:
+    """A metadata value as PNG/JPEG text: booleans as 0/1, arrays as JSON lists."""
+    if isinstance(value, (bool, np.bool_)):
+        return str(int(value))
+    if isinstance(value, np.ndarray):
+        return json.dumps(value.tolist())
+    if isinstance(value, (np.integer, np.floating)):
+        return str(value.item())
+    return str(value)
+
+
+def _save_image(image, path, metadata, exposure=0.0, bits=None) -> None:
+    from .colour import check_exposure
+
     path = _check_path(path)
     if metadata is not None and not isinstance(metadata, Mapping):
         raise RenderError(f"{path}: metadata must be a dict of name: value, got {type(metadata).__name__}")
     ext = os.path.splitext(path)[1].lower()
     if ext not in FORMATS:
-        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use .exr or .png")
-    layers = None
-    if isinstance(image, Mapping):
-        if "color" not in image:
-            raise RenderError(f"{path}: a dict of layers needs a 'color' entry, got {sorted(image)}")
-        layers = {k: v for k, v in image.items() if k != "color"}
-        image = image["color"]
-    a = _check_image(image)
-    if ext == ".png":
+        raise RenderError(f"{path}: unsupported image format {ext or '(none)'!r}; use {FORMATS_TEXT}")
+    bits = check_bits(ext, bits, path)
+    exposure = check_exposure(exposure)
+    colour, layers, meta = _unpack(image, path)
+    meta.update(metadata or {})
+    a = _check_image(_host(colour))
+    if ext != ".exr":
         from PIL import Image
 
-        from PIL.PngImagePlugin import PngInfo
+        pixels = encode_display(a[:, :, :3], bits, exposure)
+        text = {str(k): _text(v) for k, v in meta.items()}
+        if exposure:
+            text.setdefault("warprt_exposure", _text(exposure))
+        if ext == ".png" and bits == 16:
+            _atomic_write(path, lambda p: _png16(p, pixels, text))
+        elif ext == ".png":
+            from PIL.PngImagePlugin import PngInfo
 
-        rgb8 = linear_to_srgb8(a[:, :, :3])
-        info = PngInfo()
-        for k, v in (metadata or {}).items():  # tEXt chunks, e.g. warprt:partial = true
-            info.add_text(str(k), str(int(v)) if isinstance(v, bool) else str(v))
-        _atomic_write(path, lambda p: Image.fromarray(rgb8, mode="RGB").save(p, format="PNG", pnginfo=info))
+            info = PngInfo()
+            for k, v in text.items():  # tEXt chunks, e.g. warprt:partial = true
+                info.add_text(k, v)
+            _atomic_write(path, lambda p: Image.fromarray(pixels, mode="RGB").save(p, format="PNG", pnginfo=info))
+        else:  # JPEG: the metadata as a JSON object in the comment
+            comment = json.dumps(text).encode("utf-8") if text else b""
+            _atomic_write(path, lambda p: Image.fromarray(pixels, mode="RGB").save(
+                p, format="JPEG", quality=JPEG_QUALITY, subsampling=0, comment=comment))
         return
+    channels = exr_channels(path, a, layers, meta.get("warprt_background"), half=bits == 16)
+    write_exr(path, channels, {**meta, "warprt_exr_layout": EXR_LAYOUT})
+
+
+def premultiply(rgb: np.ndarray, coverage: np.ndarray, background) -> np.ndarray:
+    """The colour of a render (background included where samples missed) as premultiplied RGB
+    over alpha = ``coverage``: the light of the samples that hit alone, colour − (1 − coverage) ×
+    background (never below 0; exactly 0 where nothing was hit). A camera ray that misses adds
+    exactly the background (``integrator``), so this is the hits' mean light times their
+    fraction, to float32 rounding; with a black background the colour itself, bit for bit."""
+    bg = np.asarray(background, np.float64).reshape(-1)[:3]
+    cov = np.asarray(coverage, np.float64)[..., None]
+    light = np.maximum(np.asarray(rgb, np.float64) - (1.0 - cov) * bg, 0.0)
+    return np.where(cov > 0.0, light, 0.0).astype(np.float32)
+
+
+def _half(x) -> np.ndarray:
+    """Float32 values as half floats, finite values beyond half's range clipped to ±65504."""
+    return np.clip(np.asarray(x, np.float32), -HALF_MAX, HALF_MAX).astype(np.float16)
+
+
+def exr_channels(path: str, a: np.ndarray, layers: Mapping | None, background=None, half: bool = False) -> dict:
+    """The EXR channels of colour ``a`` (H, W, 3 or 4) and ``layers`` (see :func:`save_image`):
+    R, G, B, A (the coverage AOV's, or an RGBA image's fourth channel), then the layers."""
     from .aov import AOVS
 
-    channels = {"RGB": a[:, :, :3]}
+    shape = a.shape[:2]
+    arrays = {}
     for name, data in (layers or {}).items():
-        d = np.asarray(data.numpy() if hasattr(data, "numpy") else data)
-        if d.shape[:2] != a.shape[:2]:
+        d = _host(data)
+        if d.shape[:2] != shape:
             raise RenderError(f"{path}: layer {name!r} has shape {d.shape}, the colour {a.shape}")
+        arrays[name] = d
+    rgb, alpha = a[:, :, :3], None
+    if "coverage" in arrays:
+        alpha = np.asarray(arrays.pop("coverage"), np.float32).reshape(shape)
+        if background is not None:
+            rgb = premultiply(rgb, alpha, background)
+    elif a.shape[2] == 4:
+        alpha = a[:, :, 3]
+    colour = _half if half else (lambda x: np.asarray(x, np.float32))
+    channels = {c: colour(rgb[:, :, k]) for k, c in enumerate("RGB")}
+    if alpha is not None:
+        channels["A"] = colour(alpha)
+    for name, d in arrays.items():
         spec = AOVS.get(name)
         if spec is not None and spec.uint:  # ids: UINT channels of id + 1, 0 for none
             channels[spec.exr[0]] = (d.astype(np.int64) + 1).clip(0, 0xFFFFFFFF).astype(np.uint32)
         elif spec is not None:
+            store = _half if half and spec.half else (lambda x: np.asarray(x, np.float32))
             for k, channel in enumerate(spec.exr):
-                channels[channel] = d if d.ndim == 2 else d[:, :, k]
+                c = d if d.ndim == 2 else d[:, :, k]
+                sign = spec.signs[k] if spec.signs else 1.0
+                channels[channel] = store(c if sign == 1.0 else sign * np.asarray(c, np.float32))
         elif d.ndim == 2:  # a layer of the caller's own
-            channels[f"{name}.V"] = d
+            channels[f"{name}.V"] = colour(d) if np.issubdtype(d.dtype, np.floating) else d
         else:
             for k in range(d.shape[2]):
-                channels[f"{name}.{'XYZW'[k]}"] = d[:, :, k]
-    write_exr(path, channels, metadata)
+                channels[f"{name}.{'XYZW'[k]}"] = colour(d[:, :, k]) if np.issubdtype(d.dtype, np.floating) \
+                    else d[:, :, k]
+    return channels
+
+
+def _png16(path: str, rgb16: np.ndarray, text: Mapping[str, str]) -> None:
+    """Write a 48-bit RGB PNG (bit depth 16, colour type 2; the PNG specification, 11.2), which
+    Pillow cannot: big-endian samples, each row with filter type 2 ("Up": the byte-wise
+    difference from the row above), deflated by zlib; ``text`` as tEXt chunks (iTXt, UTF-8,
+    for text that is not Latin-1)."""
+    import struct
+    import zlib
+
+    h, w, _ = rgb16.shape
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    raw = np.ascontiguousarray(rgb16, dtype=">u2").view(np.uint8).reshape(h, 6 * w)
+    rows = np.empty((h, 6 * w + 1), np.uint8)
+    rows[:, 0] = 2  # Up
+    rows[:, 1:] = raw
+    rows[1:, 1:] -= raw[:-1]  # (uint8: modulo 256, as the filter is defined)
+    parts = [b"\x89PNG\r\n\x1a\n", chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))]
+    for key, value in text.items():
+        k = key.encode("latin-1", "replace")[:79]
+        try:
+            parts.append(chunk(b"tEXt", k + b"\0" + value.encode("latin-1")))
+        except UnicodeEncodeError:
+            parts.append(chunk(b"iTXt", k + b"\0\0\0\0\0" + value.encode("utf-8")))
+    parts.append(chunk(b"IDAT", zlib.compress(rows, 6)))
+    parts.append(chunk(b"IEND", b""))
+    with open(path, "wb") as f:
+        for part in parts:
+            f.write(part)
 
 
 def save_image_or_fallback(image, path: str | os.PathLike, metadata: Mapping[str, object] | None = None,
-                           folder: str | None = None) -> None:
-    """:func:`save_image`; when the write fails on a full disk, quota or I/O error, write the
-    image to ``folder`` (default: the system's temporary folder) under a fresh name instead and
-    raise the :class:`WriteError` with ``fallback`` set and the message saying where it went."""
+                           folder: str | None = None, **options) -> None:
+    """:func:`save_image` (``options``: its ``exposure`` and ``bits``); when the write fails on a
+    full disk, quota or I/O error, write the image to ``folder`` (default: the system's
+    temporary folder) under a fresh name instead and raise the :class:`WriteError` with
+    ``fallback`` set and the message saying where it went."""
     try:
-        save_image(image, path, metadata)
+        save_image(image, path, metadata, **options)
     except WriteError as e:
         folder = folder or tempfile.gettempdir()
         stem, ext = os.path.splitext(os.path.basename(os.fspath(path)))
@@ -398,7 +572,7 @@ def save_image_or_fallback(image, path: str | os.PathLike, metadata: Mapping[str
             fd, fallback = tempfile.mkstemp(prefix=f"{stem}.", suffix=ext, dir=folder)
             os.close(fd)
             try:
-                save_image(image, fallback, metadata)
+                save_image(image, fallback, metadata, **options)
             except BaseException:
                 os.unlink(fallback)
                 raise
@@ -408,19 +582,31 @@ def save_image_or_fallback(image, path: str | os.PathLike, metadata: Mapping[str
         raise WriteError(f"{e}; the image was written to {fallback} instead", e.path, e.free, fallback) from None
 
 
+def _header_value(v):
+    """A metadata value as an EXR attribute: int, float or str; a numeric 4×4 or 3×3 array as a
+    float32 matrix (M44f, M33f), a 2- or 3-vector as V2f/V3f; anything else as its string."""
+    if isinstance(v, (bool, np.bool_)):
+        return int(v)
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.floating):
+        return float(v)
+    if isinstance(v, np.ndarray) and v.dtype.kind in "fiu" and v.shape in ((4, 4), (3, 3), (3,), (2,)):
+        return np.ascontiguousarray(v, dtype=np.float32)
+    if not isinstance(v, (int, float, str)):
+        return str(v)
+    return v
+
+
 def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str, object] | None = None) -> None:
-    """Write named channels/layers to one EXR file (``RGB`` is the colour): float32, or UINT for
-    uint32 arrays."""
+    """Write named channels/layers to one EXR file (``RGB`` is the colour): float32, HALF for
+    float16 arrays, UINT for uint32 arrays; ``metadata`` as header attributes (``_header_value``)."""
     import OpenEXR
 
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for k, v in (metadata or {}).items():
-        if isinstance(v, bool):
-            v = int(v)
-        if not isinstance(v, (int, float, str)):
-            v = str(v)
-        header[str(k)] = v
-    channels = {name: np.ascontiguousarray(data if np.asarray(data).dtype == np.uint32 else
+        header[str(k)] = _header_value(v)
+    channels = {name: np.ascontiguousarray(data if np.asarray(data).dtype in (np.uint32, np.float16) else
                                            np.asarray(data, dtype=np.float32)) for name, data in layers.items()}
 
     def write(p):
@@ -432,9 +618,13 @@ def write_exr(path: str, layers: Mapping[str, np.ndarray], metadata: Mapping[str
 
 
 def read_exr(path: str | os.PathLike, layers: bool = False):
-    """Read an EXR written by warprt: the RGB image (H, W, 3) float32 and the header; with
-    ``layers=True`` also a dict of the other layers (``{"depth": (H, W), "normal": (H, W, 3)...}``,
-    the same names, shapes and dtypes as ``render(..., aovs=...)`` returns)."""
+    """Read an EXR written by warprt (this layout or the earlier one, see the module docstring;
+    any EXR with R, G and B channels): the colour as the render returned it, (H, W, 3) float32
+    (a premultiplied file's background, ``warprt_background``, added back where the coverage is
+    below 1: bit for bit where the coverage is 1, and everywhere under a black background; to
+    float32 rounding elsewhere), and the header; with ``layers=True`` also a dict of the other layers
+    (``{"depth": (H, W), "normal": (H, W, 3)...}``, the same names, shapes and dtypes as
+    ``render(..., aovs=...)`` returns; ``coverage`` is the alpha)."""
     import OpenEXR
 
     path = _check_path(path, "an EXR file path")
@@ -453,21 +643,30 @@ def read_exr(path: str | os.PathLike, layers: bool = False):
         raise RenderError(f"{path}: cannot be read as an OpenEXR image ({e})") from None
     if not all(c in ch for c in "RGB"):
         raise RenderError(f"{path}: holds no R, G, B channels (channels: {', '.join(sorted(ch))})")
+    layout = header.get("warprt_exr_layout", 0)
+    current = isinstance(layout, int) and layout >= EXR_LAYOUT
     rgb = np.stack([ch[c].astype(np.float32) for c in "RGB"], axis=-1)
+    background = header.get("warprt_background")
+    if current and "A" in ch and background is not None:  # the render's colour: the background back in
+        cov = ch["A"].astype(np.float64)[..., None]
+        rgb = (rgb.astype(np.float64) + (1.0 - cov) * np.asarray(background, np.float64).reshape(-1)[:3]) \
+            .astype(np.float32)
     if not layers:
         return rgb, header
     from .aov import AOVS
 
     out = {}
-    for name, spec in AOVS.items():  # warprt's AOVs, under their standard channel names
-        if all(c in ch for c in spec.exr):
+    for name, spec in AOVS.items():  # warprt's AOVs, under their channel names of the file's layout
+        names = spec.exr if current else LEGACY_EXR.get(name, spec.exr)
+        signs = spec.signs if current and spec.signs else (1.0,) * len(names)
+        if all(c in ch for c in names):
             if spec.uint:
-                out[name] = (ch[spec.exr[0]].astype(np.int64) - 1).astype(np.int32)
-            elif len(spec.exr) == 1:
-                out[name] = ch[spec.exr[0]]
+                out[name] = (ch[names[0]].astype(np.int64) - 1).astype(np.int32)
             else:
-                out[name] = np.stack([ch[c] for c in spec.exr], axis=-1)
-            for c in spec.exr:
+                parts = [ch[c].astype(np.float32) * np.float32(s) if s != 1.0 else ch[c].astype(np.float32)
+                         for c, s in zip(names, signs)]
+                out[name] = parts[0] if len(parts) == 1 else np.stack(parts, axis=-1)
+            for c in names:
                 del ch[c]
     grouped: dict[str, dict[str, np.ndarray]] = {}
     for name, data in ch.items():

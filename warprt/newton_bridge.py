@@ -35,6 +35,7 @@ import numpy as np
 import warp as wp
 
 from .checks import check_bodies
+from .colour import srgb_to_linear
 from .errors import RenderError, SceneError
 from .scene.description import (
     Box, Camera, Capsule, Cylinder, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere,
@@ -46,11 +47,6 @@ TESSELLATION = dict(sphere_subdivisions=4, cylinder_sections=64)  # meshes for c
 # newton.GeoType values (checked against the installed Newton on import of the model)
 _PLANE, _HFIELD, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH, _CONE, _CONVEX = 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
 _VISIBLE = 1  # newton.ShapeFlags.VISIBLE
-
-
-def srgb_to_linear(c) -> tuple:
-    c = np.asarray(c, np.float64)
-    return tuple(float(x) for x in np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4))
 
 
 def _check_newton_enums() -> None:
@@ -162,7 +158,7 @@ def scene_from_model(model, camera: Camera | None = None, lights=None, ambient=0
     shapes, materials = [], {}
     for j, s in enumerate(global_shapes + per_world[0]):
         name = f"shape{j}"
-        materials[name] = Material(kd=srgb_to_linear(colors[s]), ka=0.0)
+        materials[name] = Material(kd=tuple(map(float, srgb_to_linear(np.asarray(colors[s], np.float64)))), ka=0.0)
         shapes.append(_warprt_shape(model, s, name))
     table = np.array([global_shapes + per_world[w] for w in range(n_worlds)], np.int32).reshape(n_worlds, len(shapes))
     scene = Scene(camera=camera or Camera(eye=(4, -4, 3), look_at=(0, 0, 0.5), up=(0, 0, 1), fov=45, width=128,

@@ -46,6 +46,7 @@ from .integrator import kernels_for, packets_for
 from .trace import PACKET
 from .memory import check_memory
 from .records import GENERAL_FEATURES, Features
+from .results import Displayed, RenderLayers, scene_camera_matrices, scene_metadata
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
 from .signals import Deferred
 
@@ -64,7 +65,11 @@ def check_seed(seed, name: str = "seed") -> int:
 
 
 @dataclass
-class RenderResult:
+class RenderResult(Displayed):
+    """One render: the image, its AOVs, the samples per pixel, the statistics and what
+    reproduces it; ``metadata`` is what :func:`warprt.save_image` writes with it (see
+    :mod:`warprt.results`), and a notebook shows it as its image."""
+
     image: np.ndarray  # (H, W, 3) float32 linear radiance, row 0 at the top (a wp.array with as_warp)
     spp: int  # samples per pixel in the image
     wall_time: float  # seconds spent in the passes (excludes build and compile)
@@ -87,6 +92,21 @@ class RenderResult:
     adaptive: bool = False
     kernel_load: float = 0.0  # seconds spent loading (or compiling) a kernel before the first pass
     general_passes: int = 0  # passes run on the general kernel while the scene's own compiled
+    scene: Scene | None = field(default=None, repr=False, compare=False)  # the scene rendered (for metadata)
+
+    @property
+    def metadata(self) -> dict:
+        """What :func:`warprt.save_image` writes with the image (:mod:`warprt.results`): the
+        reproduction keys, ``warprt:partial`` for an interrupted render, and from the scene the
+        camera matrices, the background and the id AOVs' name tables."""
+        meta = self.reproduction()
+        if self.interrupted:
+            meta["warprt:partial"] = "true"
+        if self.scene is not None:
+            to_camera, to_ndc = scene_camera_matrices(self.scene.camera)
+            meta.update(worldToCamera=to_camera, worldToNDC=to_ndc)
+            meta.update(scene_metadata(self.scene, self.aovs))
+        return meta
 
     def reproduction(self) -> dict:
         """What reproduces this image bit for bit, as image metadata (``warprt_*`` keys; the CLI
@@ -613,7 +633,7 @@ class Renderer:
                         n0 = max(1, int(spp) // ADAPTIVE_PILOT_FRACTION)  # 2 spp: one sample, then counts
                         done, interrupted, _ = self._passes(film, params, 0, n0, ctrl_c, bar, None, None, **run)
                         if not interrupted:
-                            counts = adaptive_counts(film, done, int(spp), native="native_counts" not in self.fast_off)
+                            counts = adaptive_counts(film, done, int(spp))
                             film.set_counts(counts)
                             planned = int(counts.max())
                             if bar is not None:
@@ -647,7 +667,7 @@ class Renderer:
                                 device=str(dev), interrupted=interrupted, relative_error=rel_err, aovs=aov_maps,
                                 planned_spp=pattern, passes=tuple(passes), stopped_by=stopped_by, seed=int(seed),
                                 sampler=self.scene.render.sampler, adaptive=bool(adaptive and spp >= ADAPTIVE_MIN_SPP),
-                                kernel_load=kernel_load, general_passes=self._general_passes)
+                                kernel_load=kernel_load, general_passes=self._general_passes, scene=self.scene)
         finally:
             kernels.reset_quiet(quiet)
             if held:
@@ -776,7 +796,9 @@ class Renderer:
 def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | None = None, **options):
     """Render ``scene`` and return linear radiance as a float32 (H, W, 3) array, row 0 at the top.
 
-    With ``aovs=[...]`` the result is a dict: ``{"color": image, "depth": ..., ...}``.
+    With ``aovs=[...]`` the result is a dict: ``{"color": image, "depth": ..., ...}`` (a
+    :class:`warprt.results.RenderLayers`, which also has the result's ``.spp`` and ``.metadata``,
+    so that ``save_image`` writes them).
 
     ``spp`` defaults to the scene's ``render.spp``; ``seed`` picks the noise (the same seed gives
     the same image bit for bit). Further options (``workers``, ``slices``, ``time_budget``,
@@ -785,5 +807,5 @@ def render(scene: Scene, spp: int | None = None, seed: int = 0, device: str | No
     """
     result = Renderer(scene, device=device).render(spp=spp, seed=seed, **options)
     if options.get("aovs"):
-        return {"color": result.image, **result.aovs}
+        return RenderLayers({"color": result.image, **result.aovs}, result)
     return result.image

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
@@ -52,6 +52,7 @@ from .film import Film, FilmData, claim_block
 from .aov import AOVS, AovData, AovTarget, check_aov_names, no_aovs
 from .integrator import kernels_for, packets_for
 from .memory import check_memory
+from .results import Displayed, FrameResult, camera_record_matrices, png_bytes, scene_metadata
 from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
     GENERAL_FEATURES, CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams,
@@ -296,12 +297,64 @@ def batch_kernel_for(F: Features, packets: bool):
 
 
 @dataclass
-class BatchResult:
+class BatchResult(Displayed):
+    """A batch render: every world's and camera's image on the device (``color``, also
+    ``image``), the AOVs, the samples per pixel and the metadata the images share;
+    :meth:`frame` gives one image as a :class:`warprt.results.FrameResult` (numpy copies with
+    that camera's matrices), which ``save_image`` writes whole. The arrays (and the cameras the
+    metadata reads) are the batch's own, reused by its next render. A notebook shows the images
+    as a grid (worlds down, cameras across)."""
+
     color: "wp.array"  # (W, C, H, Wpx) vec3 on the device: linear radiance
     spp: int
     wall_time: float  # seconds from the pose update to the image (compiles excluded)
     film: Film  # the batch's accumulation buffers (read only on demand: rays, overflows)
     aovs: dict  # requested AOVs as (W, C, H, Wpx) wp.arrays on the device (see warprt.aov)
+    seed: int = 0
+    scene: Scene | None = field(default=None, repr=False, compare=False)
+    cameras: "wp.array | None" = field(default=None, repr=False, compare=False)  # (W·C,) CameraData of the render
+
+    @property
+    def image(self) -> "wp.array":
+        """The colour: ``color`` under the name every result uses ((W, C, H, Wpx) vec3, on the device)."""
+        return self.color
+
+    @property
+    def metadata(self) -> dict:
+        """What the images share (:mod:`warprt.results`): spp, seed, the background and the id
+        AOVs' name tables; each :meth:`frame` adds its camera's matrices."""
+        meta = {"warprt_spp": self.spp, "warprt_seed": self.seed}
+        if self.scene is not None:
+            meta.update(scene_metadata(self.scene, self.aovs))
+        return meta
+
+    def frame(self, world: int = 0, camera: int = 0) -> FrameResult:
+        """Image ``world``, ``camera`` with its AOVs (numpy copies) and metadata (the camera's
+        ``worldToCamera`` / ``worldToNDC`` at shutter open, ``warprt_world``, ``warprt_camera``)."""
+        W, C = self.color.shape[:2]
+        for name, value, n in (("world", world, W), ("camera", camera, C)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not -n <= value < n:
+                raise RenderError(f"{name} must be an integer index below {n}, got {value!r:.60}")
+        world, camera = int(world) % W, int(camera) % C
+        image = np.array(self.color[world, camera].numpy(), copy=True)
+        aovs = {name: np.array(a[world, camera].numpy(), dtype=AOVS[name].out, copy=True)
+                for name, a in self.aovs.items()}
+        meta = {**self.metadata, "warprt_world": world, "warprt_camera": camera}
+        if self.cameras is not None:
+            rec = self.cameras[world * C + camera: world * C + camera + 1].numpy()[0]
+            meta["worldToCamera"], meta["worldToNDC"] = camera_record_matrices(rec)
+        return FrameResult(image=image, aovs=aovs, spp=self.spp, metadata=meta)
+
+    def _repr_png_(self) -> bytes:
+        """The images in a grid (at most 8 worlds down and 8 cameras across, 2-pixel gaps)."""
+        W, C, H, X = self.color.shape
+        w, c = min(W, 8), min(C, 8)
+        colour = self.color.numpy()
+        grid = np.zeros((w * H + 2 * (w - 1), c * X + 2 * (c - 1), 3), np.float32)
+        for i in range(w):
+            for j in range(c):
+                grid[i * (H + 2):i * (H + 2) + H, j * (X + 2):j * (X + 2) + X] = colour[i, j]
+        return png_bytes(grid)
 
     @property
     def rays(self) -> int:
@@ -659,7 +712,8 @@ class BatchRenderer:
         aov_maps = {} if target is None else target.maps(shape, as_warp=True)
         wp.synchronize_device(dev)
         wall = _time.perf_counter() - start
-        return BatchResult(color=self._color.reshape(shape), spp=spp, wall_time=wall, film=self.film, aovs=aov_maps)
+        return BatchResult(color=self._color.reshape(shape), spp=spp, wall_time=wall, film=self.film, aovs=aov_maps,
+                           seed=int(seed), scene=self.scene, cameras=self._cams)
 
 
 @build_once

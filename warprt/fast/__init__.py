@@ -24,7 +24,7 @@ When a switch is read (``Mechanism.stage``):
   (the kernel variant is the same, switched on or off);
 * ``variant``: picks another render-kernel variant (camera packets: the one-by-one kernel CUDA
   runs);
-* ``render``: by ``render.Renderer`` or ``film`` on the host, per render;
+* ``render``: by ``render.Renderer`` on the host, per render;
 * ``import``: compiled in when ``warprt`` is imported (native snippets, or code that a run-time
   test would slow down), so only the environment variable switches it (set before Python starts).
 """
@@ -160,9 +160,6 @@ _LIST = (
     Mechanism("row_threads", "a CPU thread takes a whole row (render.pixels_per_thread: a launch copies its "
               "arguments once per thread); off: one pixel a thread",
               "CPU renders", "render.Renderer._passes", "render"),
-    Mechanism("native_counts", "adaptive sampling's counts by one pass of native code (film.pilot_counts); off: "
-              "numpy (film._counts, what a CUDA film takes)",
-              "CPU adaptive renders", "film.adaptive_counts", "render"),
 )
 MECHANISMS: dict[str, Mechanism] = {m.name: m for m in _LIST}
 

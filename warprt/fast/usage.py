@@ -11,12 +11,12 @@ from ..records import KIND_RECT
 from ..sampling import SAMPLER_IDS
 
 
-def in_use(renderer, adaptive: bool = False) -> dict[str, bool]:
-    """For every mechanism, whether ``renderer``'s renders run it (``adaptive``: the renders are
-    adaptive), by the rules of ``Mechanism.applies``, from the records the build wrote (a table
-    built, a field set) and the kernel chosen; a kernel-, render- or import-stage mechanism switched
-    off for the renderer is not in use. Mechanisms whose work depends on the rays (a lane count reached, a
-    lane in a box) count as used where the scene gives them that work to do."""
+def in_use(renderer) -> dict[str, bool]:
+    """For every mechanism, whether ``renderer``'s renders run it, by the rules of
+    ``Mechanism.applies``, from the records the build wrote (a table built, a field set) and the
+    kernel chosen; a kernel-, render- or import-stage mechanism switched off for the renderer is
+    not in use. Mechanisms whose work depends on the rays (a lane count reached, a lane in a box)
+    count as used where the scene gives them that work to do."""
     built, F, scene = renderer.built, renderer.features, renderer.scene
     d = built.data
     cpu = renderer.device.is_cpu
@@ -62,7 +62,6 @@ def in_use(renderer, adaptive: bool = False) -> dict[str, bool]:
         "row_claims": cpu,
         "row_blocks": cpu and cam.height > 1,
         "row_threads": cpu,
-        "native_counts": cpu and adaptive,
     }
     assert set(use) == set(MECHANISMS)
     # (build switches show in the records, camera packets in the kernel chosen; the others are read

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from ..colour import srgb_to_linear
 from ..errors import SceneError
 from .description import DEFAULT_MATERIAL, Material, Mesh
 from .transform import Transform, as_transform
@@ -51,10 +52,6 @@ def pbr_material(base, metallic: float, roughness: float) -> Material:
     return Material(kd=tuple(b * (1.0 - m)), ks=0.0, mirror=tuple(b * m), glossy_exponent=n)
 
 
-def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 def base_colour(mat: Any) -> np.ndarray:
     """glTF base colour (linear RGB): factor × the mean of the texture's linear texels."""
     factor = getattr(mat, "baseColorFactor", None)
@@ -64,7 +61,7 @@ def base_colour(mat: Any) -> np.ndarray:
     tex = getattr(mat, "baseColorTexture", None)
     if tex is not None:
         texels = np.asarray(tex.convert("RGB"), dtype=np.float64).reshape(-1, 3) / 255.0
-        b = b * _srgb_to_linear(texels).mean(axis=0)
+        b = b * srgb_to_linear(texels).mean(axis=0)
     return b
 
 

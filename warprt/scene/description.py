@@ -17,6 +17,7 @@ field; the loader adds the file name and the position in the file.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field, replace
 from typing import Any, Mapping, Sequence
 
@@ -485,6 +486,14 @@ class Mesh:
             v, f = validate_arrays(self.vertices, self.faces)
             set_field(self, "vertices", v)
             set_field(self, "faces", f)
+        # a missing file is refused now, not when a render builds the scene; a relative path is
+        # taken from the current folder, where the build would read it (scene files resolve
+        # theirs against their own folder first)
+        if self.file is not None and not os.path.isfile(self.file):
+            where = os.path.abspath(self.file)
+            what = "is a folder, not a mesh file" if os.path.isdir(self.file) else "mesh file not found"
+            raise SceneError(f"{what}: {self.file!r}" + (f" (looked in {where!r})" if where != self.file else ""),
+                             "file")
 
     @classmethod
     def from_trimesh(cls, mesh: Any, **fields: Any) -> "Mesh":

@@ -2,7 +2,8 @@
 x, y, z, w layout) for the device.
 
 The rotation is given one of three ways: Euler angles (``rotate``, degrees about x, then y, then
-z), a quaternion (``rotation_quaternion``, (x, y, z, w) as Warp orders it), or taken apart from a
+z), a quaternion (``quaternion``, (x, y, z, w) as Warp orders it: the name scene files use; the
+field that holds it, and an older keyword, is ``rotation_quaternion``), or taken apart from a
 matrix by :meth:`Transform.from_matrix`. The device's instance pose is scale → rotate →
 translate, so a matrix is accepted only when it is exactly that: columns orthogonal (no shear),
 a positive determinant (no mirror, unless the caller asks for it to become a negative scale) and
@@ -99,7 +100,10 @@ def slerp(q0: Sequence[float], q1: Sequence[float], f: float) -> np.ndarray:
 @dataclass(frozen=True)
 class Transform:
     """Scale, then rotate, then translate. The rotation is ``rotate`` (Euler angles in degrees
-    about x, then y, then z) or ``rotation_quaternion`` ((x, y, z, w), normalised), not both."""
+    about x, then y, then z) or ``quaternion`` ((x, y, z, w), normalised; held in the field
+    ``rotation_quaternion``, which is also accepted as the keyword), not both."""
+
+    KEYWORD_ALIASES = {"quaternion": "rotation_quaternion"}  # (the scene files' name; checked_keywords)
 
     translate: Vec3 = (0.0, 0.0, 0.0)
     rotate: Vec3 = (0.0, 0.0, 0.0)  # degrees about x, then y, then z (extrinsic)
@@ -219,9 +223,15 @@ TRANSFORM_FIELDS = ("translate", "rotate", "quaternion", "matrix", "scale")
 
 def as_transform(x: Any, name: str) -> Transform | None:
     """A Transform, or a table of ``translate``/``rotate``/``scale`` with ``quaternion`` instead
-    of ``rotate``, or ``matrix`` alone (a 4x4 or 3x4 list of rows)."""
+    of ``rotate`` (``rotation_quaternion``, Python's older keyword, is the same field), or
+    ``matrix`` alone (a 4x4 or 3x4 list of rows)."""
     if x is None or isinstance(x, Transform):
         return x
+    if isinstance(x, Mapping) and "rotation_quaternion" in x:
+        if "quaternion" in x:
+            raise SceneError("give it once: quaternion and rotation_quaternion are the same field",
+                             f"{name}.rotation_quaternion")
+        x = {("quaternion" if k == "rotation_quaternion" else k): v for k, v in x.items()}
     if isinstance(x, Mapping):
         unknown = set(x) - set(TRANSFORM_FIELDS)
         if unknown:

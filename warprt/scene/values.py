@@ -103,18 +103,38 @@ def as_choice(x: Any, name: str, choices: Sequence[str]) -> str:
 def checked_keywords(cls: type) -> type:
     """Class decorator, over ``@dataclass``: an unknown keyword argument (``Sphere(radisu=1)``)
     raises :class:`SceneError` naming the class and the closest field, instead of the generated
-    ``__init__``'s bare TypeError. The signature, defaults and ``dataclasses.replace`` are kept."""
+    ``__init__``'s bare TypeError. The signature, defaults and ``dataclasses.replace`` are kept.
+
+    ``KEYWORD_ALIASES`` (a class attribute, ``{name: field}``) gives fields a second keyword, the
+    name scene files use (``Transform(quaternion=q)`` sets ``rotation_quaternion``); errors about
+    the field then name the keyword given."""
     init = cls.__init__
     names = [f.name for f in fields(cls) if f.init]
+    aliases = dict(getattr(cls, "KEYWORD_ALIASES", {}))
 
     @functools.wraps(init)
     def __init__(self, *args: Any, **kwargs: Any) -> None:
+        given = {}
+        for alias, name in aliases.items():
+            if alias in kwargs:
+                if name in kwargs:
+                    raise SceneError(f"give it once: {alias} and {name} are the same field", alias)
+                kwargs[name] = kwargs.pop(alias)
+                given[name] = alias
         for key in kwargs:
             if key not in names:
-                close = difflib.get_close_matches(key, names, n=1)
+                close = difflib.get_close_matches(key, [*names, *aliases], n=1)
                 hint = f"did you mean {close[0]!r}?" if close else f"fields: {', '.join(names)}"
                 raise SceneError(f"{cls.__name__} has no field {key!r}; {hint}", key)
-        init(self, *args, **kwargs)
+        if not given:
+            init(self, *args, **kwargs)
+            return
+        try:
+            init(self, *args, **kwargs)
+        except SceneError as e:
+            if e.field in given:
+                raise SceneError(e.problem, given[e.field], e.source) from None
+            raise
 
     cls.__init__ = __init__  # type: ignore[method-assign]
     return cls
@@ -132,8 +152,8 @@ def norm(v: Sequence[float]) -> float:
 def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
     """Keyframes: a list of tables, each with ``time`` (seconds, strictly increasing) and some of
     ``allowed`` (vectors; ``scale`` may be one number; ``quaternion`` is four numbers (x, y, z, w)
-    and excludes ``rotate`` in the same key). Values missing from a key are taken from the
-    object's own fields."""
+    and excludes ``rotate`` in the same key; ``rotation_quaternion`` is another name for it).
+    Values missing from a key are taken from the object's own fields."""
     if x is None or (isinstance(x, (list, tuple)) and len(x) == 0):
         return ()
     if not isinstance(x, (list, tuple)):
@@ -143,6 +163,11 @@ def as_keyframes(x: Any, name: str, allowed: Sequence[str]) -> tuple:
         where = f"{name}[{i}]"
         if not isinstance(key, Mapping):
             raise SceneError(f"expected a table, got {key!r}", where)
+        if "quaternion" in allowed and "rotation_quaternion" in key:  # (Python's older name for it)
+            if "quaternion" in key:
+                raise SceneError("give it once: quaternion and rotation_quaternion are the same field",
+                                 f"{where}.rotation_quaternion")
+            key = {("quaternion" if k == "rotation_quaternion" else k): v for k, v in key.items()}
         unknown = sorted(set(key) - {"time", *allowed})
         if unknown:
             raise SceneError(f"unknown field(s) {', '.join(unknown)}; expected time and some of: {', '.join(allowed)}",
