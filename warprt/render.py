@@ -113,8 +113,11 @@ class RenderResult(Displayed):
         writes them into every file): seed, sampler, samples per pixel, the pattern's planned
         count, the pass sizes (they never change the image) and why it stopped; with
         ``warprt_reproduce`` the ``warprt render`` options that give the same bits from the same
-        scene file (``--spp N --planned-spp P --seed S`` for an image stopped by a time budget,
-        a target error or Ctrl-C)."""
+        scene file (``--spp N --planned-spp P --no-adaptive --seed S --sampler X`` for a uniform
+        image stopped by a time budget, a target error or Ctrl-C; ``--spp N --adaptive ...`` for a
+        complete adaptive one). An adaptive image stopped part way (Ctrl-C, ``stop``) also depends on
+        the counts its pilot chose and when it stopped, which no options name: it has no
+        ``warprt_reproduce``."""
         meta = {"warprt_spp": self.spp, "warprt_seed": self.seed, "warprt_sampler": self.sampler,
                 "warprt_planned_spp": self.planned_spp,
                 "warprt_passes": "+".join(str(p) for p in self.passes),
