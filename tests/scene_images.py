@@ -1,7 +1,7 @@
 """The scenes/ files rendered small: the images a layout change must leave bit-identical.
 
 ``python -m tests.scene_images --save`` writes them to tests/data/scene_images.npz (run it only
-when the physics changes on purpose, and say so in the commit); ``test_layout.py`` compares.
+when the physics or the defaults change on purpose, and say so in the commit); ``test_layout.py`` compares.
 """
 
 from __future__ import annotations

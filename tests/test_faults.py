@@ -704,18 +704,24 @@ def test_an_image_stopped_early_is_reproduced_bit_for_bit_from_what_it_records(b
     """A render of a 64-sample pattern stopped after 5 samples (passes 1 + 2 + 2) holds the first
     5 samples of that pattern: render(spp=5, planned_spp=64) gives the same bits, in one pass or
     another split, and its record says so. (Without planned_spp the strata of a 5-sample pattern
-    differ, for the samplers that lay their samples out for the count.)"""
+    differ, for the samplers that lay their samples out for the count.) This is a uniform render's
+    record; an adaptive render (the default) stopped part way depends on its pixels' counts as well,
+    and its record leaves ``warprt_reproduce`` out rather than name options that would not give it
+    again."""
     renderer = warprt.Renderer(warprt.load_scene(basic).with_settings(sampler=sampler, spp=64))
-    stopped = renderer.render(pass_spp=2, stop=StopAfter(3), progress=False)
+    stopped = renderer.render(pass_spp=2, stop=StopAfter(3), progress=False, adaptive=False)
     assert (stopped.spp, stopped.planned_spp, stopped.passes, stopped.stopped_by) == (5, 64, (1, 2, 2), "interrupt")
     meta = stopped.reproduction()
-    assert meta["warprt_reproduce"] == f"--spp 5 --planned-spp 64 --seed 0 --sampler {sampler}"
+    assert meta["warprt_reproduce"] == f"--spp 5 --planned-spp 64 --no-adaptive --seed 0 --sampler {sampler}"
     assert (meta["warprt_passes"], meta["warprt_sampler"], meta["warprt_planned_spp"]) == ("1+2+2", sampler, 64)
     for pass_spp in (None, 3):
         again = renderer.render(spp=5, planned_spp=64, pass_spp=pass_spp, progress=False)
         assert again.image.tobytes() == stopped.image.tobytes() and again.stopped_by is None
-    fresh = renderer.render(spp=5, progress=False)
+    fresh = renderer.render(spp=5, progress=False, adaptive=False)
     assert (fresh.image.tobytes() == stopped.image.tobytes()) == (sampler in ("independent", "sobol"))
+    default = renderer.render(pass_spp=2, stop=StopAfter(3), progress=False)  # the scene's: adaptive
+    assert default.adaptive and default.stopped_by == "interrupt"
+    assert "warprt_reproduce" not in default.reproduction()
 
 
 @pytest.mark.parametrize("sampler", SAMPLERS)
@@ -729,7 +735,8 @@ def test_the_cli_reproduces_a_time_budget_image_from_its_header(basic, tmp_path,
     assert 1 <= header["warprt_spp"] < 1 << 20
     assert sum(int(x) for x in header["warprt_passes"].split("+")) == header["warprt_spp"]
     args = header["warprt_reproduce"].split()
-    assert args == ["--spp", str(header["warprt_spp"]), "--planned-spp", str(1 << 20), "--seed", "7",
+    # (a time budget renders uniformly, whatever the scene's render.adaptive: the record says so)
+    assert args == ["--spp", str(header["warprt_spp"]), "--planned-spp", str(1 << 20), "--no-adaptive", "--seed", "7",
                     "--sampler", sampler]
     status, out, err = run_cli(["render", basic, "-o", b, *args, "--no-progress"], capsys)
     assert status == 0, err

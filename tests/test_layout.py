@@ -134,9 +134,10 @@ def test_every_kernel_module_compiles_without_fma_contraction(device):
 
 
 def test_scene_files_render_bit_identical_to_the_saved_images():
-    """The scenes/ files at 48 pixels wide, 2 spp: bit for bit the images saved in
-    tests/data/scene_images.npz (saved before the layout changed; rewrite them with
-    ``python -m tests.scene_images --save`` only for a deliberate change of the physics)."""
+    """The scenes/ files at 48 pixels wide, 2 spp, with their own settings (the renderer's defaults
+    where they say nothing): bit for bit the images saved in tests/data/scene_images.npz (saved
+    before the layout changed; rewrite them with ``python -m tests.scene_images --save`` only for
+    a deliberate change of the physics or of the defaults)."""
     saved = np.load(DATA)
     images = render_all()
     assert sorted(images) == sorted(saved.files)

@@ -80,14 +80,16 @@ def test_an_empty_file_is_the_default_scene(tmp_path):
     assert cam.focus_distance is None and cam.focus == pytest.approx(5.0)
     assert cam.shutter == (0.0, 1.0) and cam.eye_end is None and cam.look_at_end is None
     r = scene.render
-    assert (r.spp, r.sampler, r.max_depth, r.min_weight, r.t_min, r.t_max, r.clamp) == (
-        1, "stratified", 5, 1e-4, 0.0, math.inf, 1e20)
+    # (the best settings on the benchmark corpus: Sobol samples, adaptive where a render takes a budget)
+    assert (r.spp, r.sampler, r.max_depth, r.min_weight, r.t_min, r.t_max, r.clamp, r.light_sampling, r.adaptive) == (
+        1, "sobol", 5, 1e-4, 0.0, math.inf, 1e20, "cosine", True)
     assert set(scene.materials) == {"default"}
     m = scene.materials["default"]
     assert m.kd == (0.8, 0.8, 0.8) and m.ka == m.kd and m.ks == (0.0, 0.0, 0.0) and m.p == 32.0
     assert m.mirror == (0.0, 0.0, 0.0) and m.transparency == (0.0, 0.0, 0.0)
     assert (m.ior, m.fresnel, m.glossy_exponent, m.frosted_exponent) == (1.5, "none", 0.0, 0.0)
     assert (scene.animation.frames, scene.animation.fps) == (1, 24.0) and cam.keyframes == ()
+    assert load(tmp_path, "[render]\nadaptive = false").render.adaptive is False
     # the loader and the Python API agree on every default
     assert cam == Camera() and r == RenderSettings() and m == Material() and scene.animation == Animation()
 
@@ -504,6 +506,7 @@ def test_camera_and_render_fields(tmp_path):
     ('[render]\nmin_weight = 2', "render.min_weight", ["<= 1"]),
     ('[render]\nt_min = 5\nt_max = 1', "render.t_max", ["exceed"]),
     ('[render]\nclamp = 0', "render.clamp", ["> 0"]),
+    ('[render]\nadaptive = "yes"', "render.adaptive", ["true or false", "yes"]),
     ('[materials.m]\np = -1', "materials.m.p", [">= 0"]),
     ('[materials.m]\nior = 0', "materials.m.ior", ["> 0"]),
     ('[materials.m]\nfresnel = "fast"', "materials.m.fresnel", ["schlick", "exact"]),

@@ -113,8 +113,11 @@ class RenderResult(Displayed):
         writes them into every file): seed, sampler, samples per pixel, the pattern's planned
         count, the pass sizes (they never change the image) and why it stopped; with
         ``warprt_reproduce`` the ``warprt render`` options that give the same bits from the same
-        scene file (``--spp N --planned-spp P --seed S`` for an image stopped by a time budget,
-        a target error or Ctrl-C)."""
+        scene file (``--spp N --planned-spp P --no-adaptive --seed S --sampler X`` for a uniform
+        image stopped by a time budget, a target error or Ctrl-C; ``--spp N --adaptive ...`` for a
+        complete adaptive one). An adaptive image stopped part way (Ctrl-C, ``stop``) also depends on
+        the counts its pilot chose and when it stopped, which no options name: it has no
+        ``warprt_reproduce``."""
         meta = {"warprt_spp": self.spp, "warprt_seed": self.seed, "warprt_sampler": self.sampler,
                 "warprt_planned_spp": self.planned_spp,
                 "warprt_passes": "+".join(str(p) for p in self.passes),
@@ -595,29 +598,31 @@ class Renderer:
             self._start_kernel()
             kernel_load = _time.perf_counter() - loading
             self._general_passes = 0
-            self.light_samples(int(workers))  # samples = "auto": chosen once, then set for every render
-            if self._light_samples is not None:
-                self._use_light_map(not adaptive)  # (the split map for uniform renders only)
-            self.built.rendering()  # (a view rendered often enough gets its bins)
-            # (None: the CPU workers claim blocks of rows; see the module docstring)
-            n_slices = (None if slices is None else int(slices)) if dev.is_cpu else 1
-            # the AOVs, from the passes' own samples (warprt.aov): the pass that completes the planned
-            # samples writes them, unless adaptive sampling decides the counts after its pilot
-            counted = adaptive and spp >= ADAPTIVE_MIN_SPP
-            target = self._aovs_for(aovs, width * height, NO_LIMIT if counted else int(spp), held and not as_warp)
-            run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop,
-                       aov=no_aovs(dev) if target is None else target.data)
-
-            show = (sys.stderr.isatty() if progress is None else progress)
-            bar = None
-            if show:
-                from tqdm import tqdm
-
-                bar = tqdm(total=int(spp), unit="spp", desc="render", delay=0.5, leave=False, file=sys.stderr)
+            # a Ctrl-C from here on (the "auto" lights' pilot included) is held until the next
+            # pass is done, and the render returns what it has
             ctrl_c = _CtrlC()
-            start = _time.perf_counter()
-            try:
-                with ctrl_c:
+            with ctrl_c:
+                self.light_samples(int(workers))  # samples = "auto": chosen once, then set for every render
+                if self._light_samples is not None:
+                    self._use_light_map(not adaptive)  # (the split map for uniform renders only)
+                self.built.rendering()  # (a view rendered often enough gets its bins)
+                # (None: the CPU workers claim blocks of rows; see the module docstring)
+                n_slices = (None if slices is None else int(slices)) if dev.is_cpu else 1
+                # the AOVs, from the passes' own samples (warprt.aov): the pass that completes the planned
+                # samples writes them, unless adaptive sampling decides the counts after its pilot
+                counted = adaptive and spp >= ADAPTIVE_MIN_SPP
+                target = self._aovs_for(aovs, width * height, NO_LIMIT if counted else int(spp), held and not as_warp)
+                run = dict(workers=int(workers), n_slices=n_slices, pass_spp=pass_spp, stop=stop,
+                           aov=no_aovs(dev) if target is None else target.data)
+
+                show = (sys.stderr.isatty() if progress is None else progress)
+                bar = None
+                if show:
+                    from tqdm import tqdm
+
+                    bar = tqdm(total=int(spp), unit="spp", desc="render", delay=0.5, leave=False, file=sys.stderr)
+                start = _time.perf_counter()
+                try:
                     planned = int(spp)
                     interrupted = False
                     pattern = int(spp if planned_spp is None else planned_spp)
@@ -642,9 +647,9 @@ class Renderer:
                     if not interrupted:
                         done, interrupted, rel_err = self._passes(film, params, done, planned, ctrl_c, bar, time_budget,
                                                                   target_error, **run)
-            finally:
-                if bar is not None:
-                    bar.close()
+                finally:
+                    if bar is not None:
+                        bar.close()
             wall = _time.perf_counter() - start
             if target_error is not None and rel_err is None and done >= 2:
                 rel_err = film.relative_error(done)

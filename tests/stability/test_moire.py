@@ -5,8 +5,9 @@ any fixed sampling rate. A regular n×n grid of samples per pixel (``sampler="re
 naive supersampler: the same stratum centres in every pixel) samples them at one fixed rate, so
 the excess frequency folds back into a smooth false pattern (moiré) that more samples on the
 same kind of grid only move towards the horizon: its error hardly falls with spp. Jittered
-stratified samples and Owen-scrambled Sobol points (warprt's ``stratified`` default and
-``sobol``) turn the same error into fine noise that falls with spp.
+stratified samples and Owen-scrambled Sobol points (warprt's ``stratified`` and its default
+``sobol``) turn the same error into fine noise that falls with spp. Every render is uniform
+(``adaptive=False``): each pixel takes the spp of its sampler's pattern.
 
 Measured against a converged reference (Sobol, 1024 spp) at equal spp = 4, 16, 64 (2×2, 4×4,
 8×8 grids for ``regular``); stratified and Sobol errors are RMS over 4 seeds. Moiré is error
@@ -66,7 +67,8 @@ def _slope(errors) -> float:
 def errors():
     """{sampler: (block errors, RMS errors)}, one entry per spp in SPPS."""
     scene = stripes_scene()
-    reference = render(scene.with_settings(sampler="sobol"), REFERENCE_SPP, seed=REFERENCE_SEED).image[..., 0]
+    reference = render(scene.with_settings(sampler="sobol"), REFERENCE_SPP, seed=REFERENCE_SEED,
+                       adaptive=False).image[..., 0]
     n = SIZE // BLOCK
 
     def mse(img):
@@ -77,7 +79,8 @@ def errors():
     for sampler in ("regular", "stratified", "sobol"):
         seeds = [0] if sampler == "regular" else SEEDS  # regular: the same samples for every seed
         s = scene.with_settings(sampler=sampler)
-        per_spp = [np.mean([mse(render(s, spp, seed=seed).image) for seed in seeds], axis=0) for spp in SPPS]
+        per_spp = [np.mean([mse(render(s, spp, seed=seed, adaptive=False).image) for seed in seeds], axis=0)
+                   for spp in SPPS]
         out[sampler] = (np.sqrt([b for b, _ in per_spp]), np.sqrt([r for _, r in per_spp]))
     return out
 
