@@ -85,7 +85,9 @@ def test_single_batch_and_scalar_paths_agree(case):
     mean), and a batch of 2 worlds x 2 cameras whose world 0 camera 0 keeps the scene's poses (the
     same samples: to float32 rounding) while the other three are posed shape by shape, light by
     light and camera by camera, at shutter open and close (the single render of the same poses
-    set on the host: the same samples with ``regular``, else statistically)."""
+    set on the host: the same samples with ``regular``, else statistically). The scene states
+    its settings (uniform unless told, fixed shadow rays: a batch's); in the adaptive cases the
+    defaults a user gets (adaptive, ``samples = "auto"``) are checked against the batch by noise."""
     scene = paths.every_kind_scene(case["sampler"], case["camera"], case["objects"], case["lens"], SPP)
     single = warprt.Renderer(scene, device="cpu", features=FULL)
     ref = single.render(spp=SPP, seed=SEED, progress=False, aovs=AOV_NAMES)
