@@ -134,11 +134,17 @@ def _moved(t: warprt.Transform, motion: str) -> warprt.Transform | None:
 
 
 def every_kind_scene(sampler: str = "stratified", camera_motion: str = "still", objects: str = "still",
-                     lens: bool = False, spp: int = 8) -> warprt.Scene:
+                     lens: bool = False, spp: int = 8, adaptive: bool = False, defaults: bool = False) -> warprt.Scene:
     """Every shape kind (a plane, a sphere, a rectangle, a disk, a box, a capsule, a cylinder and a
     non-uniformly scaled closed mesh) under every light kind (point, directional, rectangle,
     sphere and disk lights, the area lights in view), with the sphere, the solids and the mesh
-    still, translating or turning over the shutter."""
+    still, translating or turning over the shutter. Its settings are stated, not the defaults:
+    the area lights' shadow rays per sample fixed (a batch takes 1 for ``"auto"``) and uniform
+    sampling unless ``adaptive`` (``render.adaptive``: what ``render()`` does when not told).
+    ``defaults``: the area lights and the sampling as a user gets them (``samples = "auto"``,
+    adaptive sampling)."""
+    n = (lambda k: "auto") if defaults else (lambda k: k)
+    adaptive = adaptive or defaults
     v, f = closed_mesh()
     mats = {"floor": warprt.Material(kd=0.6), "red": warprt.Material(kd=(0.8, 0.2, 0.2), ks=0.3, p=20),
             "green": warprt.Material(kd=(0.2, 0.7, 0.3)), "blue": warprt.Material(kd=(0.2, 0.3, 0.8), ks=0.2, p=8)}
@@ -163,12 +169,13 @@ def every_kind_scene(sampler: str = "stratified", camera_motion: str = "still", 
     lights = (warprt.PointLight(position=(2.0, 4.0, 3.0), intensity=0.5),
               warprt.DirectionalLight(direction=(-0.3, -1.0, -0.2), intensity=0.3),
               warprt.RectLight(corner=(-0.9, 1.7, -1.0), edge1=(0.6, 0.0, 0.0), edge2=(0.0, -0.2, 0.5), radiance=1.5,
-                               samples=2),
-              warprt.SphereLight(center=(-1.9, 1.3, -0.5), radius=0.25, radiance=2.0),
-              warprt.DiskLight(center=(1.8, 1.4, -0.6), normal=(-1.0, -0.6, 0.6), radius=0.3, radiance=2.0))
+                               samples=n(2)),
+              warprt.SphereLight(center=(-1.9, 1.3, -0.5), radius=0.25, radiance=2.0, samples=n(1)),
+              warprt.DiskLight(center=(1.8, 1.4, -0.6), normal=(-1.0, -0.6, 0.6), radius=0.3, radiance=2.0,
+                               samples=n(1)))
     return warprt.Scene(camera=camera(camera_motion, lens), shapes=shapes, materials=mats, lights=lights,
                         ambient=0.05, background=(0.2, 0.25, 0.3),
-                        render=warprt.RenderSettings(sampler=sampler, spp=spp))
+                        render=warprt.RenderSettings(sampler=sampler, spp=spp, adaptive=adaptive))
 
 
 # --- batches on the host ----------------------------------------------------------------------

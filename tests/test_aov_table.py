@@ -60,7 +60,7 @@ def aov_scene() -> warprt.Scene:
                 warprt.RectLight(corner=(0.2, 0.2, 0.5), edge1=(0.9, 0.0, 0.0), edge2=(0.0, 0.7, 0.0), radiance=RECT_LE),
                 warprt.DiskLight(center=(1.5, 1.35, 0.3), normal=(0.1, 0.0, 1.0), radius=0.4, radiance=DISK_LE),
                 warprt.SphereLight(center=(-1.4, 1.5, 0.6), radius=0.35, radiance=SPHERE_LE)),
-        ambient=0.05, background=(0.2, 0.25, 0.3), render=warprt.RenderSettings(sampler="sobol", spp=SPP))
+        ambient=0.05, background=(0.2, 0.25, 0.3), render=warprt.RenderSettings(sampler="sobol", spp=SPP, adaptive=False))
 
 
 def frame(cam: warprt.Camera, t):

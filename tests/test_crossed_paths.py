@@ -85,7 +85,9 @@ def test_single_batch_and_scalar_paths_agree(case):
     mean), and a batch of 2 worlds x 2 cameras whose world 0 camera 0 keeps the scene's poses (the
     same samples: to float32 rounding) while the other three are posed shape by shape, light by
     light and camera by camera, at shutter open and close (the single render of the same poses
-    set on the host: the same samples with ``regular``, else statistically)."""
+    set on the host: the same samples with ``regular``, else statistically). The scene states
+    its settings (uniform unless told, fixed shadow rays: a batch's); in the adaptive cases the
+    defaults a user gets (adaptive, ``samples = "auto"``) are checked against the batch by noise."""
     scene = paths.every_kind_scene(case["sampler"], case["camera"], case["objects"], case["lens"], SPP)
     single = warprt.Renderer(scene, device="cpu", features=FULL)
     ref = single.render(spp=SPP, seed=SEED, progress=False, aovs=AOV_NAMES)
@@ -122,6 +124,15 @@ def test_single_batch_and_scalar_paths_agree(case):
     color, aovs = out.numpy(), out.aovs_numpy()
     assert np.abs(color[1, 0] - color[0, 0]).max() > 0.05 and np.abs(color[0, 1] - color[0, 0]).max() > 0.05
     same_samples(color[0, 0], {k: v[0, 0] for k, v in aovs.items()}, ref.image, ref.aovs, "batch world 0", cam.eye)
+    if adaptive and case["sampler"] != "regular":
+        # what a user gets by default (adaptive sampling, the area lights' shadow rays chosen by the
+        # pilot) estimates the batch's pixels too (another seed: independent of the batch's samples)
+        scene_defaults = paths.every_kind_scene(case["sampler"], case["camera"], case["objects"], case["lens"], SPP,
+                                                defaults=True)
+        got = warprt.Renderer(scene_defaults, device="cpu", features=FULL).render(spp=SPP, seed=31, progress=False)
+        assert got.adaptive
+        same_distribution(got.image, color[0, 0], *(single.render(spp=SPP, seed=s, progress=False).image
+                                                    for s in (32, 33)), "the defaults' single render against the batch")
     for w, c in ((0, 1), (1, 0), (1, 1)):
         posed = posed_scene(scene, shapes0[w], shapes1[w], lights[w], cams0[w, c], cams1[w, c], fov[c])
         r = warprt.Renderer(posed, device="cpu", features=FULL)
@@ -288,7 +299,8 @@ def test_newton_worlds_equal_single_renders_of_their_bodies(case):
     camera = warprt.Camera(fov=40.0, width=paths.W, height=paths.H)
     lights = (warprt.DirectionalLight(direction=(-1, 1, -1), intensity=0.8), warprt.PointLight(position=(1, -2, 3)))
     r = NewtonRenderer(m, cameras=cams, camera=camera, lights=lights, ambient=0.05, background=(0.3, 0.35, 0.4),
-                       render=warprt.RenderSettings(sampler=case["sampler"], spp=SPP), motion_blur=case["motion_blur"])
+                       render=warprt.RenderSettings(sampler=case["sampler"], spp=SPP, adaptive=False),
+                       motion_blur=case["motion_blur"])
     rng = np.random.default_rng(9)
     states = [_body_poses(m, rng, 0.3)]
     if case["motion_blur"]:

@@ -59,7 +59,7 @@ def _edge_scene(look_end=None) -> warprt.Scene:
     cam = warprt.Camera(eye=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, -1.0), fov=FOV, width=EW, height=EH,
                         look_at_end=None if look_end is None else tuple(look_end))
     return warprt.Scene(camera=cam, shapes=(wall,), materials={"flat": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0,
-                        render=warprt.RenderSettings(sampler="stratified", spp=SPP))
+                        render=warprt.RenderSettings(sampler="stratified", spp=SPP, adaptive=False))
 
 
 def heading(degrees: float) -> tuple:
@@ -155,7 +155,7 @@ def _spheres_scene(centres, radius) -> warprt.Scene:
     cam = warprt.Camera(eye=(0.0, 0.0, 8.0), look_at=(0.0, 0.0, 0.0), fov=30.0, width=SW, height=SH)
     shapes = tuple(warprt.Sphere(center=tuple(c), radius=radius, material="flat") for c in centres)
     return warprt.Scene(camera=cam, shapes=shapes, materials={"flat": warprt.Material(kd=0.0, ka=1.0)}, ambient=1.0,
-                        render=warprt.RenderSettings(sampler="stratified", spp=SPP))
+                        render=warprt.RenderSettings(sampler="stratified", spp=SPP, adaptive=False))
 
 
 def sphere_coverage(cam: warprt.Camera, starts, ends, radius, k: int = 16) -> np.ndarray:

@@ -23,7 +23,7 @@ import warprt
 from warprt.errors import RenderError
 from warprt.worlds import BatchRenderer
 
-REGULAR = warprt.RenderSettings(sampler="regular", spp=1)
+REGULAR = warprt.RenderSettings(sampler="regular", spp=1, adaptive=False)  # uniform, as a batch renders
 MESH_TRANSFORM = warprt.Transform(translate=(0.1, 0.0, -0.1), rotate=(20, 35, -10), scale=(1.0, 1.4, 0.7))
 W, C, H, X = 3, 2, 24, 32
 
@@ -278,7 +278,7 @@ def test_motion_blur_between_pose_arrays_matches_a_moving_sphere():
     sphere = warprt.Sphere(center=(0, 0.5, 0), radius=0.5)
     scene = warprt.Scene(camera=warprt.Camera(eye=(0, 1, 4), look_at=(0, 0.5, 0), fov=40, width=X, height=H),
                          shapes=(sphere,), lights=(warprt.PointLight(position=(1, 3, 3)),),
-                         render=warprt.RenderSettings(spp=16))
+                         render=warprt.RenderSettings(sampler="stratified", spp=16, adaptive=False))
     br = BatchRenderer(scene, worlds=1, cameras=1, device="cpu", motion_blur=True)
     start = np.array([[[0, 0, 0, 0, 0, 0, 1]]], np.float64)
     end = np.array([[[0.8, 0, 0, 0, 0, 0, 1]]], np.float64)
