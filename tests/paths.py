@@ -141,9 +141,9 @@ def every_kind_scene(sampler: str = "stratified", camera_motion: str = "still", 
     still, translating or turning over the shutter. Its settings are stated, not the defaults:
     the area lights' shadow rays per sample fixed (a batch takes 1 for ``"auto"``) and uniform
     sampling unless ``adaptive`` (``render.adaptive``: what ``render()`` does when not told).
-    ``defaults``: the area lights and the sampling as a user gets them (``samples = "auto"``,
-    adaptive sampling)."""
-    n = (lambda k: "auto") if defaults else (lambda k: k)
+    ``defaults``: the area lights and the sampling as a user gets them (each light class's own
+    ``samples``, adaptive sampling)."""
+    n = (lambda k: {}) if defaults else (lambda k: {"samples": k})
     adaptive = adaptive or defaults
     v, f = closed_mesh()
     mats = {"floor": warprt.Material(kd=0.6), "red": warprt.Material(kd=(0.8, 0.2, 0.2), ks=0.3, p=20),
@@ -169,10 +169,10 @@ def every_kind_scene(sampler: str = "stratified", camera_motion: str = "still", 
     lights = (warprt.PointLight(position=(2.0, 4.0, 3.0), intensity=0.5),
               warprt.DirectionalLight(direction=(-0.3, -1.0, -0.2), intensity=0.3),
               warprt.RectLight(corner=(-0.9, 1.7, -1.0), edge1=(0.6, 0.0, 0.0), edge2=(0.0, -0.2, 0.5), radiance=1.5,
-                               samples=n(2)),
-              warprt.SphereLight(center=(-1.9, 1.3, -0.5), radius=0.25, radiance=2.0, samples=n(1)),
+                               **n(2)),
+              warprt.SphereLight(center=(-1.9, 1.3, -0.5), radius=0.25, radiance=2.0, **n(1)),
               warprt.DiskLight(center=(1.8, 1.4, -0.6), normal=(-1.0, -0.6, 0.6), radius=0.3, radiance=2.0,
-                               samples=n(1)))
+                               **n(1)))
     return warprt.Scene(camera=camera(camera_motion, lens), shapes=shapes, materials=mats, lights=lights,
                         ambient=0.05, background=(0.2, 0.25, 0.3),
                         render=warprt.RenderSettings(sampler=sampler, spp=spp, adaptive=adaptive))

@@ -615,9 +615,10 @@ class RectLight:
     edge1: Vec3 = (1.0, 0.0, 0.0)
     edge2: Vec3 = (0.0, 0.0, 1.0)
     radiance: RGB = (1.0, 1.0, 1.0)  # Le, emitted radiance
-    # shadow rays per shading point and camera sample, or "auto": chosen per scene from a small
-    # pilot (warprt.splitting), the default
-    samples: int | str = "auto"
+    # shadow rays per shading point and camera sample, or "auto": chosen per scene by a small pilot
+    # (warprt.splitting), which pays where one renderer renders long or often (its cost is the
+    # renderer's once)
+    samples: int | str = 1
 
     def __post_init__(self):
         r = Rectangle(self.corner, self.edge1, self.edge2)
@@ -643,7 +644,7 @@ class SphereLight:
     center: Vec3 = (0.0, 4.0, 0.0)
     radius: float = 0.5
     radiance: RGB = (1.0, 1.0, 1.0)
-    samples: int | str = "auto"  # (as RectLight's)
+    samples: int | str = 1  # (as RectLight's)
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
@@ -663,7 +664,7 @@ class DiskLight:
     normal: Vec3 = (0.0, -1.0, 0.0)
     radius: float = 0.5
     radiance: RGB = (1.0, 1.0, 1.0)
-    samples: int | str = "auto"  # (as RectLight's)
+    samples: int | str = 1  # (as RectLight's)
 
     def __post_init__(self):
         set_field(self, "center", as_vec3(self.center, "center"))
