@@ -307,7 +307,10 @@ def adaptive_counts(film: Film, n0: int, spp: int) -> np.ndarray:
     n_min = max(1, n0, spp // ADAPTIVE_MIN_SHARE)
     h, w = film.height, film.width
     _, colours = _adaptive_layout(h, w, _near_weight(n0))
-    nb = _deviations(film, n0)
+    # (radiance near float32's largest overflows the squares: such a colour's total is not finite
+    # and it keeps the uniform count, below, without numpy's warnings reaching the user)
+    with np.errstate(over="ignore", invalid="ignore"):
+        nb = _deviations(film, n0)
     counts = np.full(h * w, spp, dtype=np.int32)
     for mine in colours:
         dev = nb[mine].astype(np.float64)  # the shares in float64: the budget must add up exactly
