@@ -98,13 +98,15 @@ def posed(translate, rotate=(0.0, 0.0, 0.0), scale=1.0) -> warprt.Transform:
 # --- meshes ----------------------------------------------------------------------------------------------
 
 
-def torus(n_major: int, n_minor: int, major: float, minor: float, bumps: float = 0.0):
+def torus(n_major: int, n_minor: int, major: float, minor: float, bumps: float = 0.0,
+          waves: tuple[int, int] = (24, 12)):
     """A torus around the y axis, (n_major x n_minor) quads of 2 triangles, optional bumps on the
-    tube radius; closed, outward-facing."""
+    tube radius (``waves``: their count around the ring and around the tube); closed,
+    outward-facing, consistently wound. (The benchmarks' and the tests' one torus.)"""
     u = np.arange(n_major) * (2 * np.pi / n_major)
     v = np.arange(n_minor) * (2 * np.pi / n_minor)
     uu, vv = np.meshgrid(u, v, indexing="ij")
-    r = minor * (1.0 + bumps * np.sin(24 * uu) * np.sin(12 * vv))
+    r = minor * (1.0 + bumps * np.sin(waves[0] * uu) * np.sin(waves[1] * vv))
     x = (major + r * np.cos(vv)) * np.cos(uu)
     z = (major + r * np.cos(vv)) * np.sin(uu)
     y = r * np.sin(vv)

@@ -57,6 +57,7 @@ import numpy as np  # noqa: E402
 
 import warprt  # noqa: E402
 from benchmarks import docs  # noqa: E402
+from benchmarks.corpus_scenes import torus  # noqa: E402
 from benchmarks.mitsuba_export import (  # noqa: E402,F401  (to_mitsuba, write_ply, ExportError: this module's API too)
     GROUND_HALF, ExportError, load_mitsuba, plane_beyond_extent, to_mitsuba, write_ply,
 )
@@ -172,22 +173,8 @@ def scene_visible_light(width: int = 256, height: int = 256) -> warprt.Scene:
 
 def bumpy_torus(n_major: int, n_minor: int, major: float, minor: float, bumps: float = 0.0):
     """A torus around the y axis as an (n_major x n_minor) quad grid, 2 triangles per quad, with
-    optional bumps on the tube radius."""
-    u = np.arange(n_major) * (2 * np.pi / n_major)
-    v = np.arange(n_minor) * (2 * np.pi / n_minor)
-    uu, vv = np.meshgrid(u, v, indexing="ij")
-    r = minor * (1.0 + bumps * np.sin(24 * uu) * np.sin(12 * vv))
-    x = (major + r * np.cos(vv)) * np.cos(uu)
-    z = (major + r * np.cos(vv)) * np.sin(uu)
-    y = r * np.sin(vv)
-    vertices = np.stack([x, y, z], axis=-1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
-    a = i * n_minor + j
-    b = ((i + 1) % n_major) * n_minor + j
-    c = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor
-    d = i * n_minor + (j + 1) % n_minor
-    faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
-    return vertices, faces
+    optional bumps on the tube radius (``benchmarks.corpus_scenes.torus``)."""
+    return torus(n_major, n_minor, major, minor, bumps)
 
 
 def scene_big_mesh(width: int = 256, height: int = 256) -> warprt.Scene:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import warprt
+from benchmarks.corpus_scenes import torus
 from warprt import accel, fast
 from warprt.fast.usage import in_use
 
@@ -25,18 +26,7 @@ PACKAGE = ROOT / "warprt"
 def _torus(n_major: int = 32, n_minor: int = 16, major: float = 0.5, minor: float = 0.2):
     """A closed torus of 2 · n_major · n_minor triangles around the y axis (1024 by default: the
     threshold of the bins and the shadow packets)."""
-    u, v = np.meshgrid(np.arange(n_major) * (2 * np.pi / n_major), np.arange(n_minor) * (2 * np.pi / n_minor),
-                       indexing="ij")
-    x = (major + minor * np.cos(v)) * np.cos(u)
-    z = (major + minor * np.cos(v)) * np.sin(u)
-    verts = np.stack([x, minor * np.sin(v), z], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
-    a = i * n_minor + j
-    b = ((i + 1) % n_major) * n_minor + j
-    c = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor
-    d = i * n_minor + (j + 1) % n_minor
-    faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
-    return verts, faces
+    return torus(n_major, n_minor, major, minor)
 
 
 def _scene(**camera) -> warprt.Scene:

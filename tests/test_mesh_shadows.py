@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 
 import warprt
+from benchmarks.corpus_scenes import torus
 
 from exact_rays import Triangles
 
@@ -39,19 +40,7 @@ UNSTABLE_SHARE = 0.006  # of the pixels checked: 3x the measured 0.2%
 def bumpy_torus(n_major: int, n_minor: int, major: float, minor: float, bumps: float):
     """A closed torus around y (quads split in two, consistently wound) with bumps on its tube:
     concave creases everywhere, for shadow rays to graze."""
-    u = np.arange(n_major) * (2 * np.pi / n_major)
-    v = np.arange(n_minor) * (2 * np.pi / n_minor)
-    uu, vv = np.meshgrid(u, v, indexing="ij")
-    r = minor * (1.0 + bumps * np.sin(6 * uu) * np.sin(4 * vv))
-    x = (major + r * np.cos(vv)) * np.cos(uu)
-    z = (major + r * np.cos(vv)) * np.sin(uu)
-    y = r * np.sin(vv)
-    vertices = np.stack([x, y, z], axis=-1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
-    a, b = i * n_minor + j, ((i + 1) % n_major) * n_minor + j
-    c, d = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor, i * n_minor + (j + 1) % n_minor
-    faces = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
-    return vertices, faces
+    return torus(n_major, n_minor, major, minor, bumps, waves=(6, 4))
 
 
 MATERIALS = {"ground": warprt.Material(kd=0.6, ka=0.0), "mesh": warprt.Material(kd=(0.8, 0.55, 0.3), ka=0.0)}
