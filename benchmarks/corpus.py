@@ -80,7 +80,7 @@ from benchmarks.mitsuba_export import (  # noqa: E402
 )
 from benchmarks.sidebyside import (  # noqa: E402
     SETTLE_S, TARGETS, THREADS, MitsubaSide, PassSum, WarprtSide, compare, effective_config, machine_info,
-    noise_floor, parse_config, render_passes, sweep, time_to_error,
+    noise_floor, parse_config, pyplot, render_passes, sweep, time_to_error,
 )
 
 TRAIN, VALIDATION = "train", "validation"
@@ -522,13 +522,8 @@ def markdown(results: dict) -> str:
 
 
 def write_chart(results: dict, path: Path) -> bool:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("matplotlib missing: no chart (install the 'charts' extra)")
+    plt = pyplot()
+    if plt is None:
         return False
     configs = results["configs"]
     splits = [s for s in (TRAIN, VALIDATION) if any(r["split"] == s for r in results["scenes"].values())]

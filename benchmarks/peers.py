@@ -62,8 +62,8 @@ from benchmarks.mitsuba_export import (  # noqa: E402,F401  (to_mitsuba, write_p
     GROUND_HALF, ExportError, load_mitsuba, plane_beyond_extent, to_mitsuba, write_ply,
 )
 from benchmarks.sidebyside import (  # noqa: E402
-    SETTLE_S, TARGETS, THREADS, MitsubaSide, WarprtSide, compare, has_area_lights, machine_info, render_passes,
-    sweep, time_to_error,
+    SETTLE_S, TARGETS, THREADS, MitsubaSide, WarprtSide, compare, has_area_lights, machine_info, pyplot,
+    render_passes, sweep, time_to_error,
 )
 
 # +adaptive: Renderer.render(adaptive=True); +split: the area lights with samples = "auto" (the
@@ -459,15 +459,10 @@ def markdown_table(results: dict) -> str:
 
 
 def write_chart(results: dict, path: Path) -> bool:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        import matplotlib.ticker
-    except ImportError:
-        print("matplotlib missing: no chart (install the 'charts' extra)")
+    plt = pyplot()
+    if plt is None:
         return False
+    import matplotlib.ticker
     recs = list(results["scenes"].values())
     cols = min(3, len(recs))
     rows = math.ceil(len(recs) / cols)

@@ -341,3 +341,17 @@ def machine_info(mi=None, dr=None, variant: str = "", note: str = "") -> dict:
     except OSError:
         pass
     return info
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend, or None, saying so in a line, where the ``charts``
+    extra is not installed."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib missing: no chart (install the 'charts' extra)")
+        return None
+    return plt
