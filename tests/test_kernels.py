@@ -4,6 +4,9 @@ the general kernel and switch to the scene's own between passes (``warprt.kernel
 from __future__ import annotations
 
 import io
+import os
+import subprocess
+import sys
 import threading
 import uuid
 
@@ -162,11 +165,11 @@ def test_no_background_compile_without_a_cached_general_kernel(monkeypatch):
     general = kernels_for(Features.full(), r.packets).render
     monkeypatch.setattr(kernels, "module_cached", lambda m, d: False)
     started = []
-    monkeypatch.setattr(kernels, "compile_general", lambda m, d: started.append(getattr(m, "module", m)))
+    monkeypatch.setattr(kernels, "compile_general", lambda m, d, p=None: started.append((getattr(m, "module", m), p)))
     monkeypatch.setattr(kernels, "Background", lambda *a, **k: pytest.fail("own kernel compiled in the background"))
     r.render(spp=1, progress=False)
     assert r._running is r.kernel  # compiled (here: loaded) in the foreground
-    assert started == [general.module]  # and the general kernel asked for, for the next feature set
+    assert started == [(general.module, r.packets)]  # and the general kernel asked for, for the next feature set
 
 
 def test_a_batch_starts_on_the_general_kernel_and_switches_with_the_same_bits(monkeypatch):
@@ -198,3 +201,50 @@ def test_compile_notices_follow_the_progress_setting(monkeypatch):
     r._loaded = r._running = None  # (as a new feature set would: the kernel loads again)
     r.render(spp=1)
     assert seen == [True, False]
+
+
+class _Running:
+    """Stands in for a background compile still under way."""
+
+    def __init__(self, module, device, **kwargs):
+        self.module = module
+
+    def done(self):
+        return False
+
+
+def test_a_general_compile_cut_short_by_the_exit_goes_on_in_a_process_of_its_own(monkeypatch):
+    """A process that ends while the general kernel compiles in the background (a command-line
+    render) starts ``python -m warprt.kernels`` detached, with the kernel cache it used, so that
+    the next run finds the kernel; a finished compile, or one not of the render kernel, starts
+    nothing."""
+    general = kernels_for(Features.full(), True).render
+    monkeypatch.setattr(kernels, "_general", {})
+    monkeypatch.setattr(kernels, "_general_packets", {})
+    monkeypatch.setattr(kernels, "module_cached", lambda m, d: False)
+    monkeypatch.setattr(kernels, "Background", _Running)
+    started = []
+    monkeypatch.setattr(kernels.subprocess, "Popen", lambda args, **kw: started.append((args, kw)))
+    kernels.compile_general(general, "cpu", True)
+    kernels._finish_general_elsewhere()
+    assert len(started) == 1
+    args, kw = started[0]
+    assert args[1:] == ["-m", "warprt.kernels", "1", "cpu"] and kw["start_new_session"]
+    assert kw["env"]["WARP_CACHE_PATH"] == str(wp.config.kernel_cache_dir)
+    started.clear()
+    monkeypatch.setattr(_Running, "done", lambda self: True)
+    kernels._finish_general_elsewhere()
+    monkeypatch.setattr(kernels, "_general_packets", {})
+    monkeypatch.setattr(_Running, "done", lambda self: False)
+    kernels._finish_general_elsewhere()
+    assert started == []
+
+
+def test_the_general_compile_process_loads_the_general_kernel():
+    """``python -m warprt.kernels PACKETS DEVICE`` loads (here, from the shared cache: compiled by
+    the tests before) the general render kernel and exits 0."""
+    kernels.load(kernels_for(Features.full(), True).render, "cpu")  # (in the cache whatever ran before)
+    env = {**os.environ, "WARP_CACHE_PATH": str(wp.config.kernel_cache_dir)}
+    done = subprocess.run([sys.executable, "-m", "warprt.kernels", "1", "cpu"], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -28,8 +28,10 @@ at a lower priority (nice +10, Linux) so that the render's worker threads keep t
 
 from __future__ import annotations
 
+import atexit
 import contextvars
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -229,9 +231,12 @@ _general: dict = {}  # (module name, device) -> the general kernel's Background 
 _general_lock = threading.Lock()
 
 
-def compile_general(module, device) -> None:
+def compile_general(module, device, packets: bool | None = None) -> None:
     """Compile the general kernel in the background (once per process and device) when Warp's
-    cache lacks it, so that the next renderer with a new feature set finds it there."""
+    cache lacks it, so that the next renderer with a new feature set finds it there. ``packets``:
+    the render kernel's (``integrator.kernels_for``), so that a process that ends before the
+    compile does (a command-line render) hands it to a process of its own
+    (``_finish_general_elsewhere``)."""
     module = getattr(module, "module", module)
     device = wp.get_device(device)
     with _general_lock:
@@ -239,6 +244,29 @@ def compile_general(module, device) -> None:
         if key in _general or module_cached(module, device):
             return
         _general[key] = Background(module, device)
+        if packets is not None:
+            _general_packets[key] = bool(packets)
+
+
+_general_packets: dict = {}  # (module name, device) -> the general render kernel's packets flag
+
+
+@atexit.register
+def _finish_general_elsewhere() -> None:
+    """At exit, a general kernel still compiling in the background is compiled again by a
+    detached process of low priority (``python -m warprt.kernels``), which outlives this one and
+    leaves it in Warp's cache for the next run: a short process (one command-line render) would
+    otherwise abandon it every time."""
+    for key, bg in list(_general.items()):
+        if bg.done() or key not in _general_packets:
+            continue
+        env = {**os.environ, "WARP_CACHE_PATH": str(wp.config.kernel_cache_dir), "WARPRT_QUIET": "1"}
+        try:
+            subprocess.Popen([sys.executable, "-m", "warprt.kernels", str(int(_general_packets[key])), key[1]],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             env=env, start_new_session=True)
+        except OSError:  # (no process to spare: the next run compiles it)
+            pass
 
 
 class Background:
@@ -290,3 +318,21 @@ def cache_entry(module, device, block_dim):
     active = block_dim if block_dim is not None else module.options["block_dim"]
     folder = os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier(active))
     return folder, module._get_compile_output_name(dev, block_dim=active), module._get_meta_name(block_dim=active)
+
+
+def _compile_general_main(argv: list[str]) -> int:
+    """``python -m warprt.kernels PACKETS DEVICE``: the general render kernel compiled into Warp's
+    cache, at low priority (what ``_finish_general_elsewhere`` starts)."""
+    if hasattr(os, "nice"):
+        os.nice(BACKGROUND_NICE)
+    from . import _warp  # noqa: F401  (Warp initialised with warprt's settings)
+    from .integrator import kernels_for
+    from .records import GENERAL_FEATURES
+
+    packets, device = bool(int(argv[0])), argv[1]
+    load(kernels_for(GENERAL_FEATURES, packets).render, device)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_compile_general_main(sys.argv[1:]))

@@ -461,7 +461,7 @@ class Renderer:
         if (not self._background_compile or own is general or kernels.module_cached(own, self.device)
                 or not kernels.module_cached(general, self.device)):
             if self._background_compile and own is not general:
-                kernels.compile_general(general, self.device)
+                kernels.compile_general(general, self.device, self.packets)
             self.compile()
             return own
         if self._background is None or self._background.module is not own.module:
