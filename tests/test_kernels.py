@@ -248,3 +248,15 @@ def test_the_general_compile_process_loads_the_general_kernel():
     done = subprocess.run([sys.executable, "-m", "warprt.kernels", "1", "cpu"], env=env, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_the_command_line_hands_the_general_compile_over_before_it_leaves(monkeypatch):
+    """The command line ends with ``os._exit`` (no exit handlers run): it hands a general compile
+    still under way to its own process first."""
+    from warprt import cli
+
+    calls = []
+    monkeypatch.setattr(kernels, "_finish_general_elsewhere", lambda: calls.append("handed over"))
+    monkeypatch.setattr(cli.os, "_exit", lambda code: calls.append(code))
+    cli._leave(3)
+    assert calls == ["handed over", 3]

@@ -330,6 +330,9 @@ def _leave(code: int) -> None:
     warp_side = sys.modules.get("warprt._warp")
     if warp_side is not None:
         warp_side.abandoned_compiles()
+    compiles = sys.modules.get("warprt.kernels")
+    if compiles is not None:  # (os._exit runs no exit handlers: the general kernel's hand-over here)
+        compiles._finish_general_elsewhere()
     ray = sys.modules.get("ray")
     if ray is not None and getattr(ray, "is_initialized", lambda: False)():
         return
