@@ -165,11 +165,12 @@ def test_no_background_compile_without_a_cached_general_kernel(monkeypatch):
     general = kernels_for(Features.full(), r.packets).render
     monkeypatch.setattr(kernels, "module_cached", lambda m, d: False)
     started = []
-    monkeypatch.setattr(kernels, "compile_general", lambda m, d, p=None: started.append((getattr(m, "module", m), p)))
+    monkeypatch.setattr(kernels, "compile_general", lambda m, d, r=None: started.append((getattr(m, "module", m), r)))
     monkeypatch.setattr(kernels, "Background", lambda *a, **k: pytest.fail("own kernel compiled in the background"))
     r.render(spp=1, progress=False)
     assert r._running is r.kernel  # compiled (here: loaded) in the foreground
-    assert started == [(general.module, r.packets)]  # and the general kernel asked for, for the next feature set
+    # and the general kernel asked for, for the next feature set
+    assert started == [(general.module, (Features.full().key, r.packets))]
 
 
 def test_a_batch_starts_on_the_general_kernel_and_switches_with_the_same_bits(monkeypatch):
@@ -204,50 +205,62 @@ def test_compile_notices_follow_the_progress_setting(monkeypatch):
 
 
 class _Running:
-    """Stands in for a background compile still under way."""
+    """Stands in for a background compile's thread still under way (``done`` False)."""
 
-    def __init__(self, module, device, **kwargs):
-        self.module = module
+    running = True
 
     def done(self):
-        return False
+        return not self.running
 
 
-def test_a_general_compile_cut_short_by_the_exit_goes_on_in_a_process_of_its_own(monkeypatch):
-    """A process that ends while the general kernel compiles in the background (a command-line
-    render) starts ``python -m warprt.kernels`` detached, with the kernel cache it used, so that
-    the next run finds the kernel; a finished compile, or one not of the render kernel, starts
-    nothing."""
-    general = kernels_for(Features.full(), True).render
-    monkeypatch.setattr(kernels, "_general", {})
-    monkeypatch.setattr(kernels, "_general_packets", {})
-    monkeypatch.setattr(kernels, "module_cached", lambda m, d: False)
-    monkeypatch.setattr(kernels, "Background", _Running)
+def test_a_compile_cut_short_by_the_exit_goes_on_in_a_process_of_its_own(monkeypatch):
+    """A process that ends while render kernels compile in the background (a command-line
+    render: the general kernel, or the scene's own while the general one renders) starts
+    ``python -m warprt.kernels`` detached for each, with its feature key and the kernel cache it
+    used, so that the next run finds them; finished compiles, and compiles of other modules,
+    start nothing."""
+    monkeypatch.setattr(kernels, "_unfinished", [])
+    monkeypatch.setattr(kernels.Background, "_run", lambda self: None)  # (no thread does any work)
+    monkeypatch.setattr(kernels.Background, "done", _Running.done)
+    monkeypatch.setattr(kernels.Background, "running", True, raising=False)
     started = []
     monkeypatch.setattr(kernels.subprocess, "Popen", lambda args, **kw: started.append((args, kw)))
-    kernels.compile_general(general, "cpu", True)
-    kernels._finish_general_elsewhere()
-    assert len(started) == 1
-    args, kw = started[0]
-    assert args[1:] == ["-m", "warprt.kernels", "1", "cpu"] and kw["start_new_session"]
-    assert kw["env"]["WARP_CACHE_PATH"] == str(wp.config.kernel_cache_dir)
+    general = kernels_for(Features.full(), True).render
+    kernels.Background(general, "cpu", render=(Features.full().key, True))
+    kernels.Background(general, "cpu", render=("meshes+area_lights", False))
+    kernels.Background(general, "cpu")  # (not a render kernel's: not handed over)
+    kernels._hand_over_compiles()
+    assert sorted(a[1:] for a, _ in started) == sorted([["-m", "warprt.kernels", Features.full().key, "1", "cpu"],
+                                                         ["-m", "warprt.kernels", "meshes+area_lights", "0", "cpu"]])
+    for _, kw in started:
+        assert kw["start_new_session"]
+        assert os.path.join(kw["env"]["WARP_CACHE_PATH"], wp.config.version) == str(wp.config.kernel_cache_dir)
     started.clear()
-    monkeypatch.setattr(_Running, "done", lambda self: True)
-    kernels._finish_general_elsewhere()
-    monkeypatch.setattr(kernels, "_general_packets", {})
-    monkeypatch.setattr(_Running, "done", lambda self: False)
-    kernels._finish_general_elsewhere()
+    monkeypatch.setattr(kernels.Background, "running", False, raising=False)
+    kernels._hand_over_compiles()
     assert started == []
 
 
-def test_the_general_compile_process_loads_the_general_kernel():
-    """``python -m warprt.kernels PACKETS DEVICE`` loads (here, from the shared cache: compiled by
-    the tests before) the general render kernel and exits 0."""
-    kernels.load(kernels_for(Features.full(), True).render, "cpu")  # (in the cache whatever ran before)
-    env = {**os.environ, "WARP_CACHE_PATH": str(wp.config.kernel_cache_dir)}
-    done = subprocess.run([sys.executable, "-m", "warprt.kernels", "1", "cpu"], env=env, capture_output=True,
-                          text=True, timeout=300)
+def test_the_compile_process_loads_the_render_kernel_of_its_feature_key():
+    """``python -m warprt.kernels FEATURES PACKETS DEVICE``, with the cache path the exit hand-over
+    gives it, loads the render kernel of that feature key (here ``basic``, from the shared cache
+    where the tests compiled it before; an empty folder would take a compile), and no other, from
+    the same folder as this process's, and exits 0."""
+    kernels.load(kernels_for(Features(), True).render, "cpu")  # (in the cache whatever ran before)
+    cache = str(wp.config.kernel_cache_dir)
+    env = {**os.environ, "WARP_CACHE_PATH": os.path.dirname(cache)}
+    code = ("import sys, warprt.kernels as k, warp as wp\n"
+            "from warprt.integrator import kernels_for\n"
+            "from warprt.records import Features\n"
+            "k._compile_main(sys.argv[1:])\n"
+            "print(wp.config.kernel_cache_dir)\n"
+            "print([bool(kernels_for(f, True).render.module.execs) for f in (Features(), Features.full())])")
+    done = subprocess.run([sys.executable, "-c", code, "basic", "1", "cpu"], env=env, capture_output=True, text=True,
+                          timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
+    folder, loaded = done.stdout.strip().splitlines()[-2:]
+    assert os.path.realpath(folder) == os.path.realpath(cache)
+    assert loaded == "[True, False]"
 
 
 def test_the_command_line_hands_the_general_compile_over_before_it_leaves(monkeypatch):
@@ -256,7 +269,7 @@ def test_the_command_line_hands_the_general_compile_over_before_it_leaves(monkey
     from warprt import cli
 
     calls = []
-    monkeypatch.setattr(kernels, "_finish_general_elsewhere", lambda: calls.append("handed over"))
+    monkeypatch.setattr(kernels, "_hand_over_compiles", lambda: calls.append("handed over"))
     monkeypatch.setattr(cli.os, "_exit", lambda code: calls.append(code))
     cli._leave(3)
     assert calls == ["handed over", 3]

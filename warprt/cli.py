@@ -331,8 +331,8 @@ def _leave(code: int) -> None:
     if warp_side is not None:
         warp_side.abandoned_compiles()
     compiles = sys.modules.get("warprt.kernels")
-    if compiles is not None:  # (os._exit runs no exit handlers: the general kernel's hand-over here)
-        compiles._finish_general_elsewhere()
+    if compiles is not None:  # (os._exit runs no exit handlers: the background compiles' hand-over here)
+        compiles._hand_over_compiles()
     ray = sys.modules.get("ray")
     if ray is not None and getattr(ray, "is_initialized", lambda: False)():
         return

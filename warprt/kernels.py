@@ -231,38 +231,40 @@ _general: dict = {}  # (module name, device) -> the general kernel's Background 
 _general_lock = threading.Lock()
 
 
-def compile_general(module, device, packets: bool | None = None) -> None:
+def compile_general(module, device, render: tuple[str, bool] | None = None) -> None:
     """Compile the general kernel in the background (once per process and device) when Warp's
-    cache lacks it, so that the next renderer with a new feature set finds it there. ``packets``:
-    the render kernel's (``integrator.kernels_for``), so that a process that ends before the
-    compile does (a command-line render) hands it to a process of its own
-    (``_finish_general_elsewhere``)."""
+    cache lacks it, so that the next renderer with a new feature set finds it there. ``render``:
+    (feature key, packets) of a render kernel (``integrator.kernels_for``), for the hand-over at
+    exit (``_hand_over_compiles``)."""
     module = getattr(module, "module", module)
     device = wp.get_device(device)
     with _general_lock:
         key = (module.name, str(device))
         if key in _general or module_cached(module, device):
             return
-        _general[key] = Background(module, device)
-        if packets is not None:
-            _general_packets[key] = bool(packets)
+        _general[key] = Background(module, device, render=render)
 
 
-_general_packets: dict = {}  # (module name, device) -> the general render kernel's packets flag
+_unfinished: list = []  # render kernels' Background compiles, for the hand-over at exit
+_unfinished_lock = threading.Lock()
 
 
 @atexit.register
-def _finish_general_elsewhere() -> None:
-    """At exit, a general kernel still compiling in the background is compiled again by a
-    detached process of low priority (``python -m warprt.kernels``), which outlives this one and
-    leaves it in Warp's cache for the next run: a short process (one command-line render) would
-    otherwise abandon it every time."""
-    for key, bg in list(_general.items()):
-        if bg.done() or key not in _general_packets:
-            continue
-        env = {**os.environ, "WARP_CACHE_PATH": str(wp.config.kernel_cache_dir), "WARPRT_QUIET": "1"}
+def _hand_over_compiles() -> None:
+    """At exit, a render kernel still compiling in the background (the general one, or a scene's
+    own while the general one renders) is compiled again by a detached process of low priority
+    (``python -m warprt.kernels``), which outlives this one and leaves it in Warp's kernel cache
+    for the next run: a short process (one command-line render) would otherwise abandon it every
+    time, and run on the general kernel every time after."""
+    with _unfinished_lock:
+        pending = {(bg.render, str(bg.device)) for bg in _unfinished if not bg.done()}
+    env = {**os.environ, "WARPRT_QUIET": "1"}
+    cache = str(wp.config.kernel_cache_dir)  # (Warp's folder for its version under the cache path)
+    if os.path.basename(cache) == wp.config.version:
+        env["WARP_CACHE_PATH"] = os.path.dirname(cache)
+    for (features, packets), device in sorted(pending):
         try:
-            subprocess.Popen([sys.executable, "-m", "warprt.kernels", str(int(_general_packets[key])), key[1]],
+            subprocess.Popen([sys.executable, "-m", "warprt.kernels", features, str(int(packets)), device],
                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                              env=env, start_new_session=True)
         except OSError:  # (no process to spare: the next run compiles it)
@@ -275,9 +277,13 @@ class Background:
     it can be launched. A compile error is kept in ``error``, and the caller stays on the kernel
     it has."""
 
-    def __init__(self, module, device, *, notices: bool = True):
+    def __init__(self, module, device, *, notices: bool = True, render: tuple[str, bool] | None = None):
         self.module = getattr(module, "module", module)
         self.device = wp.get_device(device)
+        self.render = render  # (feature key, packets) of a render kernel: handed over at exit unfinished
+        if render is not None:
+            with _unfinished_lock:
+                _unfinished[:] = [bg for bg in _unfinished if not bg.done()] + [self]
         self.error: BaseException | None = None
         self.seconds: float | None = None
         self._notices = notices and not quiet()
@@ -320,19 +326,22 @@ def cache_entry(module, device, block_dim):
     return folder, module._get_compile_output_name(dev, block_dim=active), module._get_meta_name(block_dim=active)
 
 
-def _compile_general_main(argv: list[str]) -> int:
-    """``python -m warprt.kernels PACKETS DEVICE``: the general render kernel compiled into Warp's
-    cache, at low priority (what ``_finish_general_elsewhere`` starts)."""
+def _compile_main(argv: list[str]) -> int:
+    """``python -m warprt.kernels FEATURES PACKETS DEVICE``: the render kernel of that feature key
+    (``Features.key``, e.g. ``meshes+area_lights``) compiled into Warp's kernel cache
+    (``WARP_CACHE_PATH``: the starting process's), at low priority (what ``_hand_over_compiles``
+    starts)."""
     if hasattr(os, "nice"):
         os.nice(BACKGROUND_NICE)
     from . import _warp  # noqa: F401  (Warp initialised with warprt's settings)
     from .integrator import kernels_for
-    from .records import GENERAL_FEATURES
+    from .records import Features
 
-    packets, device = bool(int(argv[0])), argv[1]
-    load(kernels_for(GENERAL_FEATURES, packets).render, device)
+    key, packets, device = argv[0], bool(int(argv[1])), argv[2]
+    features = Features(**{name: True for name in key.split("+") if name != "basic"})
+    load(kernels_for(features, packets).render, device)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(_compile_general_main(sys.argv[1:]))
+    sys.exit(_compile_main(sys.argv[1:]))

@@ -461,11 +461,11 @@ class Renderer:
         if (not self._background_compile or own is general or kernels.module_cached(own, self.device)
                 or not kernels.module_cached(general, self.device)):
             if self._background_compile and own is not general:
-                kernels.compile_general(general, self.device, self.packets)
+                kernels.compile_general(general, self.device, (GENERAL_FEATURES.key, self.packets))
             self.compile()
             return own
         if self._background is None or self._background.module is not own.module:
-            self._background = kernels.Background(own, self.device)
+            self._background = kernels.Background(own, self.device, render=(self.features.key, self.packets))
         kernels.load(general, self.device)
         self._running = general
         return general
@@ -537,13 +537,15 @@ class Renderer:
         renders in worker threads and processes, where no SIGINT handler can be installed).
         ``adaptive``: adaptive sampling (default: the scene's ``render.adaptive``, on unless it
         says false, wherever the render takes a sample budget: not with ``time_budget``,
-        ``target_error`` or ``planned_spp``, which then render uniformly). The first spp/2 samples of every pixel (the pilot)
-        measure the noise, and the ``spp × pixels`` budget, pilot included, is shared out in
-        proportion to it (every pixel at least spp/2, at most 8 × spp). A pixel's count comes from
-        its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps every
-        sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean count.
-        At 1 spp it renders uniformly; ``adaptive=True`` does not combine with ``time_budget``,
-        ``target_error`` or ``planned_spp``, ``adaptive=False`` renders uniformly. ``planned_spp`` (default ``spp``): the sample count the sampler lays its
+        ``target_error`` or ``planned_spp``, which then render uniformly). The first spp/2
+        samples of every pixel (the pilot) measure the noise, and the ``spp × pixels`` budget,
+        pilot included, is shared out in proportion to it (every pixel at least spp/2, at most 8 ×
+        spp, what a capped pixel would take beyond going to the others). A pixel's count comes
+        from its neighbours' pilots, never its own (``film.adaptive_counts``), so its image keeps
+        every sample, pilot included, and stays unbiased. ``RenderResult.spp`` is then the mean
+        count. At 1 spp it renders uniformly; ``adaptive=True`` does not combine with
+        ``time_budget``, ``target_error`` or ``planned_spp``, ``adaptive=False`` renders
+        uniformly. ``planned_spp`` (default ``spp``): the sample count the sampler lays its
         pattern out for (the ``stratified`` grid, the ``regular`` centres, the shutter's
         intervals); the first ``spp`` of those samples are run. A render stopped early (time
         budget, target error, Ctrl-C) holds the first N samples of its planned pattern, so
@@ -551,7 +553,8 @@ class Renderer:
         (``RenderResult.reproduction``)."""
         spp = self.scene.render.spp if spp is None else spp
         if adaptive is not None and not isinstance(adaptive, bool):
-            raise RenderError(f"adaptive must be True, False or None (the scene's render.adaptive), got {adaptive!r:.60}")
+            raise RenderError("adaptive must be True, False or None (the scene's render.adaptive), "
+                              f"got {adaptive!r:.60}")
         if adaptive is None:  # the scene's choice, where the render takes a sample budget
             adaptive = (self.scene.render.adaptive and planned_spp is None and time_budget is None
                         and target_error is None)
