@@ -216,7 +216,7 @@ class _Running:
 def test_a_compile_cut_short_by_the_exit_goes_on_in_a_process_of_its_own(monkeypatch):
     """A process that ends while render kernels compile in the background (a command-line
     render: the general kernel, or the scene's own while the general one renders) starts
-    ``python -m warprt.kernels`` detached for each, with its feature key and the kernel cache it
+    ``python -m warprt.compile`` detached for each, with its feature key and the kernel cache it
     used, so that the next run finds them; finished compiles, and compiles of other modules,
     start nothing."""
     monkeypatch.setattr(kernels, "_unfinished", [])
@@ -230,8 +230,8 @@ def test_a_compile_cut_short_by_the_exit_goes_on_in_a_process_of_its_own(monkeyp
     kernels.Background(general, "cpu", render=("meshes+area_lights", False))
     kernels.Background(general, "cpu")  # (not a render kernel's: not handed over)
     kernels._hand_over_compiles()
-    assert sorted(a[1:] for a, _ in started) == sorted([["-m", "warprt.kernels", Features.full().key, "1", "cpu"],
-                                                         ["-m", "warprt.kernels", "meshes+area_lights", "0", "cpu"]])
+    assert sorted(a[1:] for a, _ in started) == sorted([["-m", "warprt.compile", Features.full().key, "1", "cpu"],
+                                                         ["-m", "warprt.compile", "meshes+area_lights", "0", "cpu"]])
     for _, kw in started:
         assert kw["start_new_session"]
         assert os.path.join(kw["env"]["WARP_CACHE_PATH"], wp.config.version) == str(wp.config.kernel_cache_dir)
@@ -242,17 +242,17 @@ def test_a_compile_cut_short_by_the_exit_goes_on_in_a_process_of_its_own(monkeyp
 
 
 def test_the_compile_process_loads_the_render_kernel_of_its_feature_key():
-    """``python -m warprt.kernels FEATURES PACKETS DEVICE``, with the cache path the exit hand-over
+    """``python -m warprt.compile FEATURES PACKETS DEVICE``, with the cache path the exit hand-over
     gives it, loads the render kernel of that feature key (here ``basic``, from the shared cache
     where the tests compiled it before; an empty folder would take a compile), and no other, from
     the same folder as this process's, and exits 0."""
     kernels.load(kernels_for(Features(), True).render, "cpu")  # (in the cache whatever ran before)
     cache = str(wp.config.kernel_cache_dir)
     env = {**os.environ, "WARP_CACHE_PATH": os.path.dirname(cache)}
-    code = ("import sys, warprt.kernels as k, warp as wp\n"
+    code = ("import sys, warprt.compile as c, warp as wp\n"
             "from warprt.integrator import kernels_for\n"
             "from warprt.records import Features\n"
-            "k._compile_main(sys.argv[1:])\n"
+            "c.main(sys.argv[1:])\n"
             "print(wp.config.kernel_cache_dir)\n"
             "print([bool(kernels_for(f, True).render.module.execs) for f in (Features(), Features.full())])")
     done = subprocess.run([sys.executable, "-c", code, "basic", "1", "cpu"], env=env, capture_output=True, text=True,

@@ -253,7 +253,7 @@ _unfinished_lock = threading.Lock()
 def _hand_over_compiles() -> None:
     """At exit, a render kernel still compiling in the background (the general one, or a scene's
     own while the general one renders) is compiled again by a detached process of low priority
-    (``python -m warprt.kernels``), which outlives this one and leaves it in Warp's kernel cache
+    (``python -m warprt.compile``), which outlives this one and leaves it in Warp's kernel cache
     for the next run: a short process (one command-line render) would otherwise abandon it every
     time, and run on the general kernel every time after."""
     with _unfinished_lock:
@@ -264,7 +264,7 @@ def _hand_over_compiles() -> None:
         env["WARP_CACHE_PATH"] = os.path.dirname(cache)
     for (features, packets), device in sorted(pending):
         try:
-            subprocess.Popen([sys.executable, "-m", "warprt.kernels", features, str(int(packets)), device],
+            subprocess.Popen([sys.executable, "-m", "warprt.compile", features, str(int(packets)), device],
                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                              env=env, start_new_session=True)
         except OSError:  # (no process to spare: the next run compiles it)
@@ -324,24 +324,3 @@ def cache_entry(module, device, block_dim):
     active = block_dim if block_dim is not None else module.options["block_dim"]
     folder = os.path.join(wp.config.kernel_cache_dir, module.get_module_identifier(active))
     return folder, module._get_compile_output_name(dev, block_dim=active), module._get_meta_name(block_dim=active)
-
-
-def _compile_main(argv: list[str]) -> int:
-    """``python -m warprt.kernels FEATURES PACKETS DEVICE``: the render kernel of that feature key
-    (``Features.key``, e.g. ``meshes+area_lights``) compiled into Warp's kernel cache
-    (``WARP_CACHE_PATH``: the starting process's), at low priority (what ``_hand_over_compiles``
-    starts)."""
-    if hasattr(os, "nice"):
-        os.nice(BACKGROUND_NICE)
-    from . import _warp  # noqa: F401  (Warp initialised with warprt's settings)
-    from .integrator import kernels_for
-    from .records import Features
-
-    key, packets, device = argv[0], bool(int(argv[1])), argv[2]
-    features = Features(**{name: True for name in key.split("+") if name != "basic"})
-    load(kernels_for(features, packets).render, device)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(_compile_main(sys.argv[1:]))
