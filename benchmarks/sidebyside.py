@@ -93,7 +93,8 @@ class WarprtSide:
                     s = s.with_settings(sampler=base)
                 by_setup[setup] = warprt.Renderer(s, device="cpu")
             self.renderers[c] = by_setup[setup]
-            self.adaptive[c] = adaptive if base != "defaults" or adaptive else None
+            # (None: the scene's own choice, for "defaults" without +adaptive)
+            self.adaptive[c] = None if base == "defaults" and not adaptive else adaptive
             self.setup[c] = setup
         self.build_s = time.perf_counter() - t0
         t0 = time.perf_counter()

@@ -256,8 +256,9 @@ def _hand_over_compiles() -> None:
     (``python -m warprt.compile``), which outlives this one and leaves it in Warp's kernel cache
     for the next run: a short process (one command-line render) would otherwise abandon it every
     time, and run on the general kernel every time after."""
-    with _unfinished_lock:
+    with _unfinished_lock:  # (emptied: the command line's exit and the exit handlers both call it)
         pending = {(bg.render, str(bg.device)) for bg in _unfinished if not bg.done()}
+        _unfinished.clear()
     env = {**os.environ, "WARPRT_QUIET": "1"}
     cache = str(wp.config.kernel_cache_dir)  # (Warp's folder for its version under the cache path)
     if os.path.basename(cache) == wp.config.version:

@@ -65,7 +65,7 @@ from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
 from .trace import instance_box, posed_solid, solid_box
 
-PARAMS_ARG, BLOCK_ARG, AOV_ARG = 2, 15, 16  # positions of these among the batch kernel's arguments
+BLOCK_ARG, AOV_ARG = 15, 16  # positions of these among the batch kernel's arguments
 BOUNDS_PAD = 1e-6  # relative padding of BVH boxes (float32 rounding must not cut off a hit), as build.py
 
 
@@ -684,9 +684,8 @@ class BatchRenderer:
                 self._aovs = None  # (its buffers freed before the new ones are made)
                 target = self._aovs = AovTarget(self.built, aovs, self._color.shape[0], spp)
             target.data.end = spp
-            params = render_params(self.scene, spp, int(seed), self.features)
             params.aovs = target.mask
-            inputs[PARAMS_ARG], inputs[AOV_ARG] = params, target.data
+            inputs[AOV_ARG] = target.data
         start = _time.perf_counter()
         self._update_tables()
         if self.bvh is not None:
