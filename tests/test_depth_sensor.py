@@ -216,3 +216,34 @@ def test_sensor_outputs_need_a_sensor_model():
         warprt.Renderer(scene(None)).render(aovs=["sensor_z"])
     with pytest.raises(RenderError, match="unknown AOV"):
         warprt.Renderer(scene(None)).render(aovs=["sensor_zz"])
+
+
+def test_sensor_noise_is_the_same_for_any_thread_count_or_slices_and_stays_on_the_device():
+    noisy = warprt.DepthSensor(baseline=B, focal_length=F, disparity_sigma=0.5, dropout_start=40, dropout_end=80)
+    r = warprt.Renderer(scene(noisy))
+    a = r.render(seed=2, aovs=["sensor_z", "sensor_depth"], workers=1)
+    b = r.render(seed=2, aovs=["sensor_z", "sensor_depth"], workers=2, slices=5, pass_spp=3)
+    c = r.render(seed=2, aovs=["sensor_z", "sensor_depth"], as_warp=True)
+    for name in ("sensor_z", "sensor_depth"):
+        np.testing.assert_array_equal(a.aovs[name], b.aovs[name])
+        assert isinstance(c.aovs[name], wp.array) and c.aovs[name].shape == (12, 16)
+        np.testing.assert_array_equal(c.aovs[name].numpy(), a.aovs[name])
+
+
+def test_the_command_line_writes_the_sensor_outputs_of_a_scene_file(tmp_path, capsys):
+    from warprt.cli import main
+
+    text = (f"[camera]\neye = [0, 1.5, 4]\nlook_at = [0, 0.5, 0]\nfov = 40\nwidth = 16\nheight = 12\n"
+            f"[render]\nspp = 2\n[[shapes]]\ntype = \"plane\"\nnormal = [0.1, 1, 0]\n"
+            f"[[shapes]]\ntype = \"rectangle\"\ncorner = [0.05, 0, -0.5]\nedge1 = [0, 1.2, 0]\nedge2 = [3, 0, 0]\n"
+            f"[[shapes]]\ntype = \"sphere\"\ncenter = [-0.6, 0.6, 0.3]\nradius = 0.45\n"
+            f"[[lights]]\ntype = \"point\"\nposition = [1, 4, 3]\n"
+            f"[depth_sensor]\nmax_range = 4.0\ninvalid = \"zero\"\n")
+    (tmp_path / "s.toml").write_text(text)
+    out = tmp_path / "s.exr"
+    assert main(["render", str(tmp_path / "s.toml"), "-o", str(out), "--aovs", "z,sensor_z", "--no-progress"]) == 0
+    _, _, layers = warprt.read_exr(out, layers=True)
+    z, sz = layers["z"], layers["sensor_z"]
+    inside = np.isfinite(z) & (z <= 4.0)
+    np.testing.assert_array_equal(sz[inside], z[inside])  # no noise: the exact depth within the range
+    assert (sz[~inside] == 0).all() and (~inside).any()
