@@ -47,7 +47,7 @@ import math
 import numpy as np
 import warp as wp
 
-from ._warp import MODULE_OPTIONS, build_once
+from ._warp import build_once
 from .errors import RenderError
 from .sampling import hash2, hash_u32, u32_to_unit
 from .scene.description import DepthSensor
@@ -55,7 +55,6 @@ from .scene.description import DepthSensor
 SENSOR_AOVS = ("sensor_z", "sensor_depth")
 SENSOR_SALT = wp.constant(wp.uint32(0x5E4D0C71))  # keeps the sensor's draws apart from the image's samples
 DRAW_DROPOUT, DRAW_NOISE_1, DRAW_NOISE_2 = (wp.constant(k) for k in (1, 2, 3))
-wp.set_module_options(MODULE_OPTIONS, module="warprt_sensor")
 
 
 @wp.struct
