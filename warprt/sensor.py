@@ -4,13 +4,13 @@ exact depth a render gives (``z``, ``depth``).
 A scene with a :class:`warprt.DepthSensor` (``Scene(depth_sensor=...)``, ``[depth_sensor]`` in a
 scene file) renders two more outputs on request, next to the exact ones, which stay available:
 
-========= ======= =====================================================================
-name      shape   meaning
-========= ======= =====================================================================
+============ ====== ==================================================================
+name         shape  meaning
+============ ====== ==================================================================
 sensor_z     (H, W) the camera-space depth Z' the sensor reports (``z`` with its errors)
 sensor_depth (H, W) the distance along the ray it reports: ``depth`` · Z' / Z (the same
                     error, along the ray)
-========= ======= =====================================================================
+============ ====== ==================================================================
 
 ``warprt.render(scene, aovs=["z", "sensor_z"])``, ``Renderer.render``, ``BatchRenderer.render``
 and the Newton bridge all take these names. They are made after the render by one small kernel
