@@ -1,4 +1,4 @@
-"""warprt against Newton's SensorTiledCamera on Newton's own kind of scene, side by side.
+"""warprt against Newton's SensorCamera on Newton's own kind of scene, side by side.
 
     python -m benchmarks.newton_bench [--repeats 5] [--quick]
 
@@ -7,8 +7,9 @@ capsule on the ground, one directional light with hard shadows) on the CPU devic
 process, interleaved, after a warm-up that compiles everything:
 
 * (a) 64 worlds × 2 cameras at 128×128, (b) 1 world × 1 camera at 512×512;
-* Newton: ``SensorTiledCamera.update`` with the HDR colour output (shadows on, as its docs set
-  them up), one Warp launch (a CPU launch runs on one core);
+* Newton: ``SensorCamera.update`` with the HDR colour output (shadows on, as its docs set them
+  up), one view per world and camera (``world_indices``), one Warp launch (a CPU launch runs on
+  one core);
 * warprt: ``newton_bridge.NewtonRenderer`` (a ``BatchRenderer``) at 1 sample per pixel with the
   ``regular`` sampler (the pixel centre, Newton's own ray), on every core (``workers=2`` here)
   and on one (``workers=1``), so the ratio per core is in the table too.
@@ -39,7 +40,6 @@ import os
 import statistics
 import sys
 import time
-import warnings
 
 import numpy as np
 
@@ -79,32 +79,30 @@ def build_model(worlds: int):
 
 
 def camera_poses(worlds: int, cameras: int) -> np.ndarray:
-    from warprt.newton_bridge import look_at_pose
-
-    eyes = [(5.0, -5.0, 3.5), (-4.0, -5.5, 2.5)]
-    return np.array([[look_at_pose(eyes[c % 2], (0.0, 0.0, 0.3)) for c in range(cameras)] for _ in range(worlds)])
+    eyes = np.array([(5.0, -5.0, 3.5), (-4.0, -5.5, 2.5)])
+    return warprt.look_at(np.broadcast_to(eyes[np.arange(cameras) % 2], (worlds, cameras, 3)), (0.0, 0.0, 0.3), "z")
 
 
 class NewtonSide:
     def __init__(self, model, cameras, width, height, ambient: bool = True):
-        from newton.sensors import SensorTiledCamera
+        from newton.sensors import SensorCamera
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            self.sensor = SensorTiledCamera(model)
+        self.sensor = SensorCamera(model)
         cfg = self.sensor.default_render_config
         cfg.enable_shadows = True
         cfg.enable_ambient_lighting = ambient
         d = LIGHT_DIRECTION / np.linalg.norm(LIGHT_DIRECTION)
-        self.sensor.utils.create_default_light(enable_shadows=True, direction=wp.vec3(*d))
-        self.rays = self.sensor.utils.compute_camera_rays_pinhole(width, height, camera_fovs=[math.radians(FOV)] * cameras)
+        self.sensor.create_default_light(enable_shadows=True, direction=wp.vec3(*d))
+        self.rays = SensorCamera.compute_camera_rays_pinhole(width, height, camera_fov=math.radians(FOV), device="cpu")
         W = model.world_count
-        poses = camera_poses(W, cameras).transpose(1, 0, 2)  # Newton's (camera, world)
-        self.tf = wp.array(poses.astype(np.float32), dtype=wp.transform, device="cpu")
-        shape = (W, cameras, height, width)
-        self.hdr = wp.zeros(shape, dtype=wp.vec3, device="cpu")
-        self.depth = wp.zeros(shape, dtype=float, device="cpu")
-        self.index = wp.zeros(shape, dtype=wp.uint32, device="cpu")
+        views = W * cameras  # view w·C + c renders world w through camera c
+        self.tf = wp.array(camera_poses(W, cameras).reshape(views, 7).astype(np.float32), dtype=wp.transform,
+                           device="cpu")
+        self.worlds = wp.array(np.repeat(np.arange(W, dtype=np.int32), cameras), dtype=wp.int32, device="cpu")
+        self.shape = (W, cameras, height, width)
+        self.hdr = self.sensor.allocate_image_color_hdr(views, width, height)
+        self.depth = self.sensor.allocate_image_depth(views, width, height)
+        self.index = self.sensor.allocate_image_shape_index(views, width, height)
         self.model = model
 
     def frame(self, state, aovs: bool = False, depth: bool = False):
@@ -114,7 +112,7 @@ class NewtonSide:
         if aovs:
             kw.update(shape_index_image=self.index)
         self.model.bvh_refit_shapes(state)  # as warprt's update(state): the frame follows the state
-        self.sensor.update(state, self.tf, self.rays, **kw)
+        self.sensor.update(state, self.tf, self.rays, world_indices=self.worlds, **kw)
         wp.synchronize_device("cpu")
 
 
@@ -156,7 +154,8 @@ def agreement(model, cameras, width, height) -> dict:
     w = WarprtSide(model, cameras, width, height, workers=2)
     w.frame(state, aovs=True)
     a = w.out.aovs_numpy()
-    nd, ns, nh = n.depth.numpy(), n.index.numpy().astype(np.int64), n.hdr.numpy()
+    nd, ns = n.depth.numpy().reshape(n.shape), n.index.numpy().astype(np.int64).reshape(n.shape)
+    nh = n.hdr.numpy().reshape(n.shape + (3,))
     hit_n, hit_w = nd > 0, np.isfinite(a["depth"]) & (a["depth"] < n.sensor.default_render_config.max_distance)
     both = hit_n & hit_w
     table = w.r.shape_map.newton_shape  # (W, S): the Newton shape of warprt shape j in world w

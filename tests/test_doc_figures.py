@@ -53,7 +53,7 @@ FIGURES = [
      ["compile/full/compile_s", "compile/full/process_s"]),
     ("docs/benchmarks.md", rf"\| `Features.full\(\)`, already cached \| `[a-z_+]+` \| {N} s \| {N} s \|",
      ["compile/cached/compile_s", "compile/cached/process_s"]),
-    # warprt against Newton's SensorTiledCamera
+    # warprt against Newton's SensorCamera
     *[("docs/benchmarks.md",
        rf"\| \({key}\) [^|]* \| {N} \| {N} \| {N} \| \*\*{N}×\*\* \({N}–{N}×\) \| {N}× \| {N}× \|",
        [f"newton/cases/{key}/newton/mpix_s", f"newton/cases/{key}/warprt/mpix_s",

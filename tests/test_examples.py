@@ -65,7 +65,7 @@ def test_readme_quick_start_names_the_two_commands():
     assert "make test" in quick
 
 
-@pytest.mark.parametrize("name", ["build_scene.py", "ray_queries.py", "newton_sim.py"])
+@pytest.mark.parametrize("name", ["build_scene.py", "ray_queries.py", "newton_sim.py", "robot_camera.py"])
 def test_examples_document_their_small_size_flags(name):
     proc = subprocess.run([sys.executable, str(EXAMPLES / name), "--help"], capture_output=True, text=True,
                           timeout=120)
@@ -122,3 +122,22 @@ def test_newton_sim_example_writes_a_sequence_per_world_and_camera(tmp_path):
     line = next(l for l in proc.stdout.splitlines() if l.startswith("counters"))
     first, last = line.split(" after the last ")
     assert first.split("first frame ")[1].rstrip(",") == last
+
+
+def test_robot_camera_example_writes_colour_and_noisy_depth_per_episode_world_and_step(tmp_path):
+    pytest.importorskip("newton")
+    proc = run_example("robot_camera.py", tmp_path, "--spp", "1", "--steps", "2", "--worlds", "2", "--episodes", "2")
+    stems = [f"e{e}_w{w}_{s:03d}" for e in range(2) for w in range(2) for s in range(2)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        f"{stem}{ext}" for stem in stems for ext in (".exr", ".png", "_depth.png"))
+    assert png_size(tmp_path / f"{stems[0]}.png") == (W, H) == png_size(tmp_path / f"{stems[0]}_depth.png")
+    rgb, header, layers = warprt.read_exr(tmp_path / f"{stems[-1]}.exr", layers=True)
+    z, sz = layers["z"], layers["sensor_z"]
+    assert rgb.shape == (H, W, 3) and z.shape == sz.shape == (H, W) and "worldToCamera" in header
+    valid = np.isfinite(sz)
+    assert 0.1 < valid.mean() < 1.0 and (sz[valid] <= 4.0).all()  # the sensor's range, and no-value pixels
+    assert np.abs(sz - z)[valid].max() > 0 and np.isfinite(z[~valid]).any()  # noise; dropped or out-of-range hits
+    # two episodes draw two scenes: other colours
+    first, second = (np.asarray(warprt.read_exr(tmp_path / f"e{e}_w0_000.exr")[0]) for e in (0, 1))
+    assert np.abs(first - second).mean() > 1e-3
+    assert "depth sensor:" in proc.stdout

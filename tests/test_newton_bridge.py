@@ -1,6 +1,6 @@
 """The Newton bridge (warprt.newton_bridge) against Newton itself: the converted scene, the poses
 written from ``state.body_q``, and images where the two renderers' models coincide (depth, shape
-index and lit colour against Newton's SensorTiledCamera on the same model and cameras), plus an
+index and lit colour against Newton's SensorCamera on the same model and cameras), plus an
 update loop that rebuilds, recompiles and copies nothing. Skipped where Newton is not installed.
 
 Tolerances: depth to float32 rounding of two different ray/box, ray/sphere, ray/capsule and
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import re
-import warnings
 
 import numpy as np
 import pytest
@@ -114,28 +113,31 @@ def test_update_writes_body_times_shape_transform_and_needs_no_host_copy():
 
 
 def newton_images(m, state, poses, height, width):
-    """Newton's SensorTiledCamera on ``m``: HDR colour, depth and shape index, (W, C, H, X) each,
-    with its default directional light and shadows (its ambient off: its hemispheric ambient has
-    no warprt counterpart), and its render config (``max_distance``)."""
-    from newton.sensors import SensorTiledCamera
+    """Newton's SensorCamera on ``m``: HDR colour, depth and shape index, (W, C, H, X) each, one
+    view per world and camera (view w·C + c renders world w), with its default directional light
+    and shadows (its ambient off: its hemispheric ambient has no warprt counterpart), and its
+    render config (``max_distance``)."""
+    from newton.sensors import SensorCamera
 
-    cameras = poses.shape[1]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        sensor = SensorTiledCamera(m)
+    worlds, cameras = poses.shape[:2]
+    views = worlds * cameras
+    sensor = SensorCamera(m)
     cfg = sensor.default_render_config
     cfg.enable_shadows = True
     cfg.enable_ambient_lighting = False
-    sensor.utils.create_default_light(enable_shadows=True)
-    rays = sensor.utils.compute_camera_rays_pinhole(width, height, camera_fovs=[math.radians(FOV)] * cameras)
-    tf = wp.array(poses.transpose(1, 0, 2).astype(np.float32), dtype=wp.transform, device="cpu")
-    shape = (poses.shape[0], cameras, height, width)
-    hdr = wp.zeros(shape, dtype=wp.vec3, device="cpu")
-    depth = wp.zeros(shape, dtype=float, device="cpu")
-    index = wp.zeros(shape, dtype=wp.uint32, device="cpu")
+    sensor.create_default_light(enable_shadows=True)
+    rays = SensorCamera.compute_camera_rays_pinhole(width, height, camera_fov=math.radians(FOV), device="cpu")
+    tf = wp.array(poses.reshape(views, 7).astype(np.float32), dtype=wp.transform, device="cpu")
+    world_of_view = wp.array(np.repeat(np.arange(worlds, dtype=np.int32), cameras), dtype=wp.int32, device="cpu")
+    hdr = sensor.allocate_image_color_hdr(views, width, height)
+    depth = sensor.allocate_image_depth(views, width, height)
+    index = sensor.allocate_image_shape_index(views, width, height)
     m.bvh_refit_shapes(state)  # Newton's shape BVH follows the moved bodies
-    sensor.update(state, tf, rays, hdr_color_image=hdr, depth_image=depth, shape_index_image=index)
-    return hdr.numpy(), depth.numpy(), index.numpy().astype(np.int64), cfg
+    sensor.update(state, tf, rays, hdr_color_image=hdr, depth_image=depth, shape_index_image=index,
+                  world_indices=world_of_view)
+    shape = (worlds, cameras, height, width)
+    return (hdr.numpy().reshape(shape + (3,)), depth.numpy().reshape(shape),
+            index.numpy().astype(np.int64).reshape(shape), cfg)
 
 
 def warprt_images(m, state, poses, height, width, aovs=("depth", "object_id", "normal", "albedo")):
@@ -170,7 +172,7 @@ def test_motion_blur_opens_the_shutter_on_the_previous_state():
 
 @pytest.fixture(scope="module")
 def both():
-    """Newton's tiled camera and warprt on the same model, cameras and light."""
+    """Newton's camera and warprt on the same model, cameras and light."""
     m = model()
     state = moved_state(m)
     eyes = [(3.0, -3.0, 2.2), (-2.0, -3.0, 1.5)]

@@ -956,7 +956,7 @@ def test_every_toml_example_in_the_format_reference_loads():
 def test_the_format_reference_names_every_field():
     text = DOC.read_text()
     classes = [Camera, RenderSettings, Material, Sphere, Plane, Rectangle, Disk, Mesh, PointLight, RectLight,
-               SphereLight, DiskLight, Transform, Animation]
+               SphereLight, DiskLight, Transform, Animation, warprt.DepthSensor]
     missing = [f"{cls.__name__}.{f.name}" for cls in classes for f in dataclasses.fields(cls)
                if f"`{f.name}`" not in text]
     assert not missing

@@ -26,9 +26,9 @@ _EXPORTS = {
     "camera_rays": "query", "trace_rays": "query", "load_assets": "scene.assets",
     "Renderer": "render", "RenderResult": "render",
     "BatchRenderer": "worlds", "BatchResult": "worlds", "FrameResult": "results", "RenderLayers": "results",
-    "linear_to_srgb": "colour", "srgb_to_linear": "colour",
+    "linear_to_srgb": "colour", "srgb_to_linear": "colour", "look_at": "poses",
     **{name: "scene" for name in (
-        "Animation", "Box", "Camera", "Capsule", "Cylinder", "DirectionalLight", "Disk", "DiskLight", "Material",
+        "Animation", "Box", "Camera", "Capsule", "Cylinder", "DepthSensor", "DirectionalLight", "Disk", "DiskLight", "Material",
         "Mesh", "Plane", "PointLight", "Rectangle", "RectLight", "RenderSettings", "Scene", "Sphere", "SphereLight",
         "Transform", "load_scene", "parse_scene", "scene_from_string")},
 }
@@ -39,13 +39,13 @@ __all__ = [
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
     "SphereLight", "Transform", "load_scene", "parse_scene", "check_output", "read_exr", "render", "save_image",
     "scene_from_string", "camera_rays", "trace_rays", "load_assets", "FrameResult", "RenderLayers", "linear_to_srgb",
-    "srgb_to_linear",
+    "srgb_to_linear", "DepthSensor", "look_at",
 ]
 
 
 def __getattr__(name: str):
     if name in _EXPORTS:
-        if _EXPORTS[name] not in ("errors", "colour"):  # (those two need no Warp)
+        if _EXPORTS[name] not in ("errors", "colour", "poses"):  # (those need no Warp)
             importlib.import_module("._warp", __name__)  # Warp initialised quietly, with warprt's settings
         value = getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
     elif not name.startswith("__"):  # a submodule (warprt.image, warprt.animation ...), as before

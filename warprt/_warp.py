@@ -46,7 +46,7 @@ MODULE_OPTIONS = {"fuse_fp": False}
 #: warprt's shared Warp modules (its other kernels have a module of their own, ``module="unique"``,
 #: and pass ``module_options=MODULE_OPTIONS``)
 SHARED_MODULES = ("warprt_accel", "warprt_aov", "warprt_build", "warprt_checks", "warprt_film", "warprt_newton",
-                  "warprt_query", "warprt_worlds")
+                  "warprt_query", "warprt_sensor", "warprt_worlds")
 for _name in SHARED_MODULES:
     wp.set_module_options(MODULE_OPTIONS, module=_name)
 

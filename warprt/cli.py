@@ -115,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--aovs", type=_aov_list, default=[],
                    help="extra EXR layers, comma separated: depth,z,normal,albedo,position,coverage,object_id,"
-                        "material,motion (coverage makes the EXR premultiplied RGBA)")
+                        "material,motion (coverage makes the EXR premultiplied RGBA); sensor_z,sensor_depth with "
+                        "the scene's [depth_sensor]")
     r.add_argument("--exposure", type=_stops, default=0.0,
                    help="brighten .png and .jpg outputs by this many stops (x 2^stops) before the sRGB curve; "
                         ".exr keeps the radiance (default 0)")
@@ -144,10 +145,11 @@ def build_parser() -> argparse.ArgumentParser:
 def _aov_list(text: str) -> list[str]:
     from .aov import AOV_NAMES
 
+    known = (*AOV_NAMES, "sensor_z", "sensor_depth")  # (the depth sensor's: warprt.sensor)
     names = [n.strip() for n in text.split(",") if n.strip()]
-    bad = [n for n in names if n not in AOV_NAMES]
+    bad = [n for n in names if n not in known]
     if bad:
-        raise argparse.ArgumentTypeError(f"unknown AOV(s) {', '.join(bad)}; choose from {', '.join(AOV_NAMES)}")
+        raise argparse.ArgumentTypeError(f"unknown AOV(s) {', '.join(bad)}; choose from {', '.join(known)}")
     return names
 
 
@@ -193,7 +195,7 @@ def _render(args: argparse.Namespace, run) -> int:
     if args.planned_spp is not None and args.adaptive:
         raise RenderError("--planned-spp does not combine with --adaptive")
     width, height = scene.camera.width, scene.camera.height
-    channels = sum(AOVS[a].channels for a in args.aovs)
+    channels = sum(AOVS[a].channels if a in AOVS else 1 for a in args.aovs)
     check_free_space({out: estimate_file_bytes(out, width, height, channels, args.bits) for out in args.output})
     start = time.perf_counter()
     renderer = Renderer(scene, device=args.device)

@@ -23,8 +23,14 @@ particles, barrel cylinders and planes finite along one axis only are refused wi
 index; invisible shapes (no ``VISIBLE`` flag, e.g. collision-only ones) are skipped as Newton's
 camera skips them; opacity and textures are not read (every shape is an opaque Lambert surface
 of its colour).
-Newton is z-up: cameras are placed with ``camera_poses`` (camera to world, looking along local
--z, +y up), like Newton's own camera transforms.
+Up axis: a Newton model is z-up unless built with ``ModelBuilder(up_axis="Y")`` (or "X");
+``model.up_axis`` says which (:attr:`NewtonRenderer.up_axis`). Shapes are placed by their own
+transforms whatever the axis; what depends on it follows the model as Newton's camera does: the
+default light (Newton's, (-1, 1, -1)/√3 for z-up, turned with the up axis so that it always
+points down), the default camera's placement and its up, and the up axis against which
+``set_camera_poses`` checks the roll of the poses (:mod:`warprt.poses`). Cameras are placed with
+``camera_poses`` (camera to world, looking along local -z, +y up), like Newton's own camera
+transforms; :func:`warprt.look_at` makes them from an eye, a target and ``renderer.up_axis``.
 """
 
 from __future__ import annotations
@@ -37,10 +43,12 @@ import warp as wp
 from .checks import check_bodies
 from .colour import srgb_to_linear
 from .errors import RenderError, SceneError
+from .poses import look_at, up_vector
 from .scene.description import (
-    Box, Camera, Capsule, Cylinder, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings, Scene, Sphere,
+    Box, Camera, Capsule, Cylinder, DepthSensor, DirectionalLight, Material, Mesh, Plane, Rectangle, RenderSettings,
+    Scene, Sphere,
 )
-from .worlds import BatchRenderer, camera_quaternion
+from .worlds import BatchRenderer
 
 TESSELLATION = dict(sphere_subdivisions=4, cylinder_sections=64)  # meshes for curved Newton shapes
 
@@ -135,11 +143,33 @@ def _warprt_shape(model, s: int, material: str):
     return Mesh(vertices=v, faces=f, material=material)
 
 
+def up_rotation(model) -> np.ndarray:
+    """The rotation (3×3) that takes z-up to the model's up axis (Newton's
+    ``Axis.Z.quat_between_axes(up_axis)``: the identity for a z-up model, -90° about x for y-up)."""
+    up = model_up_axis(model)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(z, up)
+    s, c = np.linalg.norm(axis), float(np.dot(z, up))
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K
+
+
+def model_up_axis(model) -> np.ndarray:
+    """The model's up axis as a unit vector (``model.up_axis``: Newton's ``Axis``; z when absent)."""
+    return up_vector(getattr(model, "up_axis", 2), "model.up_axis")
+
+
 def scene_from_model(model, camera: Camera | None = None, lights=None, ambient=0.0, background=(0.0, 0.0, 0.0),
-                     render: RenderSettings | None = None) -> tuple[Scene, ShapeMap]:
+                     render: RenderSettings | None = None, depth_sensor: DepthSensor | None = None
+                     ) -> tuple[Scene, ShapeMap]:
     """A warprt scene of one Newton world (plus the global shapes) and the map from its shapes to
     Newton's shapes in every world. ``lights`` default to Newton's default light (directional,
-    along (-1, 1, -1)/√3, intensity 1)."""
+    along (-1, 1, -1)/√3 for a z-up model, turned to the model's up axis otherwise, intensity 1);
+    the default camera looks at the origin from (4, -4, 3) (turned likewise) with the model's up.
+    ``depth_sensor``: the scene's :class:`warprt.DepthSensor` (``sensor_z`` / ``sensor_depth``)."""
     check_model(model)
     _check_newton_enums()
     types = model.shape_type.numpy()
@@ -161,12 +191,18 @@ def scene_from_model(model, camera: Camera | None = None, lights=None, ambient=0
         materials[name] = Material(kd=tuple(map(float, srgb_to_linear(np.asarray(colors[s], np.float64)))), ka=0.0)
         shapes.append(_warprt_shape(model, s, name))
     table = np.array([global_shapes + per_world[w] for w in range(n_worlds)], np.int32).reshape(n_worlds, len(shapes))
-    scene = Scene(camera=camera or Camera(eye=(4, -4, 3), look_at=(0, 0, 0.5), up=(0, 0, 1), fov=45, width=128,
-                                          height=128),
+    R = up_rotation(model)
+
+    def turned(v):
+        return tuple(float(x) + 0.0 for x in R @ np.asarray(v, np.float64))
+
+    scene = Scene(camera=camera or Camera(eye=turned((4, -4, 3)), look_at=turned((0, 0, 0.5)), up=turned((0, 0, 1)),
+                                          fov=45, width=128, height=128),
                   shapes=tuple(shapes), materials=materials,
                   lights=tuple(lights) if lights is not None else (
-                      DirectionalLight(direction=(-1, 1, -1), intensity=1.0),),
-                  ambient=ambient, background=background, render=render or RenderSettings(spp=1))
+                      DirectionalLight(direction=turned((-1, 1, -1)), intensity=1.0),),
+                  ambient=ambient, background=background, render=render or RenderSettings(spp=1),
+                  depth_sensor=depth_sensor)
     return scene, ShapeMap(newton_shape=table, global_shapes=len(global_shapes))
 
 
@@ -193,18 +229,23 @@ class NewtonRenderer:
     depth of field from the camera's aperture. ``check_inputs``: every :meth:`update` checks, on
     the device, the poses of the bodies that carry shapes (finite, unit quaternions: an exploded
     simulation is named by body and world, see ``warprt.checks``), and every render the camera
-    arrays; False skips both once the pipeline trusts its simulation.
+    arrays; False skips both once the pipeline trusts its simulation. ``depth_sensor``: a
+    :class:`warprt.DepthSensor` whose outputs (``sensor_z``, ``sensor_depth``) :meth:`render`
+    gives on request.
     """
 
     def __init__(self, model, cameras: int = 1, camera: Camera | None = None, lights=None, ambient=0.0,
                  background=(0.0, 0.0, 0.0), render: RenderSettings | None = None, motion_blur: bool = False,
-                 device: str | None = None, check_inputs: bool = True):
+                 device: str | None = None, check_inputs: bool = True, depth_sensor: DepthSensor | None = None):
         check_model(model)
         self.model = model
-        self.scene, self.shape_map = scene_from_model(model, camera, lights, ambient, background, render)
+        self.scene, self.shape_map = scene_from_model(model, camera, lights, ambient, background, render,
+                                                      depth_sensor)
+        #: the model's up axis (a unit vector): ``warprt.look_at(eye, target, renderer.up_axis)``
+        self.up_axis = model_up_axis(model)
         self.batch = BatchRenderer(self.scene, worlds=self.shape_map.newton_shape.shape[0], cameras=cameras,
                                    device=device if device is not None else str(model.device),
-                                   motion_blur=motion_blur, check_inputs=check_inputs)
+                                   motion_blur=motion_blur, check_inputs=check_inputs, up_axis=self.up_axis)
         dev = self.batch.device
         self._map = wp.array(self.shape_map.newton_shape, dtype=wp.int32, device=dev)
         self._updates = 0
@@ -260,10 +301,12 @@ class NewtonRenderer:
         self.batch.set_camera_poses(poses, end)
 
     def render(self, spp: int | None = None, seed: int = 0, aovs=()):
+        """Every world and camera (:meth:`warprt.BatchRenderer.render`); give each simulation step
+        its own ``seed`` for independent sampling and depth-sensor noise from frame to frame."""
         return self.batch.render(spp=spp or self.scene.render.spp, seed=seed, aovs=aovs)
 
 
-def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """A camera-to-world pose (x, y, z, qx, qy, qz, qw) at ``eye`` looking at ``target``."""
-    q = camera_quaternion(eye, target, up)
-    return np.concatenate([np.asarray(eye, np.float64), q / np.linalg.norm(q)])
+def look_at_pose(eye, target, up="z") -> np.ndarray:
+    """:func:`warprt.look_at` with Newton's default up axis, z (for a model of another up axis
+    give ``up=renderer.up_axis``)."""
+    return look_at(eye, target, up)

@@ -37,7 +37,7 @@ import numpy as np
 import warp as wp
 
 from . import _warp, fast, kernels, splitting
-from .aov import AovTarget, check_aov_names, no_aovs
+from .aov import AovTarget, no_aovs
 from .build import DeviceScene, render_params
 from .camera import camera_data
 from .errors import RenderError
@@ -48,6 +48,7 @@ from .memory import check_memory
 from .records import GENERAL_FEATURES, Features
 from .results import Displayed, RenderLayers, scene_camera_matrices, scene_metadata
 from .scene.description import SPP_LIMIT, SPP_LIMIT_HINT, Scene
+from .sensor import apply_depth_sensor, eye_poses, split_aovs
 from .signals import Deferred
 
 
@@ -526,7 +527,8 @@ class Renderer:
         """Render ``spp`` samples per pixel (default: the scene's). See the module docstring for
         passes, slices, ``time_budget``, ``target_error`` and Ctrl-C; ``aovs`` names extra outputs
         (``depth``, ``z``, ``normal``, ``albedo``, ``position``, ``coverage``, ``object_id``,
-        ``material``, ``motion``; averaged over the image's own samples, see ``warprt.aov``)
+        ``material``, ``motion``; averaged over the image's own samples, see ``warprt.aov``;
+        ``sensor_z`` and ``sensor_depth`` with the scene's ``depth_sensor``, see ``warprt.sensor``)
         returned in ``RenderResult.aovs``. With ``as_warp=True`` the image and the AOVs stay on the
         device: ``RenderResult.image`` is a (H, W, 3) float32 ``wp.array`` (DLPack-ready for torch
         or JAX), with no copy to the host. ``slices``: on the CPU, cut each pass into that many
@@ -582,7 +584,8 @@ class Renderer:
                 raise RenderError(f"planned_spp must be <= {SPP_LIMIT} (2^20), got {planned_spp}")
             if adaptive:
                 raise RenderError("planned_spp does not combine with adaptive sampling (its counts come from spp)")
-        aovs = check_aov_names(aovs) if aovs else []
+        # (the depth sensor's outputs are made from the render's own AOVs: warprt.sensor)
+        asked, aovs, sensor_names = split_aovs(aovs, self.scene)
         check_memory(self.scene.camera.width, self.scene.camera.height, aovs, formats=(),
                      film_on_host=self.device.is_cpu)  # before anything is allocated or compiled
         workers = default_workers() if workers is None else workers
@@ -661,6 +664,14 @@ class Renderer:
             if target is not None:  # the AOVs of the samples the image holds
                 target.finish(film.data, done)
                 aov_maps = target.maps((height, width), as_warp)
+                if sensor_names:
+                    made = apply_depth_sensor(self.scene.depth_sensor,
+                                              {n: getattr(target.data.out, n) for n in target.names},
+                                              eye_poses(cam, dev), width * height, int(seed), sensor_names)
+                    for name, a in made.items():
+                        aov_maps[name] = a.reshape((height, width)) if as_warp else \
+                            np.array(a.numpy(), np.float32, copy=True).reshape(height, width)
+                    aov_maps = {name: aov_maps[name] for name in asked}
             # adaptive: the mean count over pixels (the budget asked for, give or take rounding)
             spp_done = done if film.counts is None else int(round(float(np.minimum(film.counts, done).mean())))
             stopped_by = None

@@ -49,7 +49,7 @@ from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
 from .checks import EXTENT_LIMIT, check_batch, describe_transform
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
-from .aov import AOVS, AovData, AovTarget, check_aov_names, no_aovs
+from .aov import AOVS, AovData, AovTarget, no_aovs
 from .integrator import kernels_for, packets_for
 from .memory import check_memory
 from .results import Displayed, FrameResult, camera_record_matrices, png_bytes, scene_metadata
@@ -63,6 +63,8 @@ from .render import (
 )
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
 from .geometry import disk_extent
+from .poses import up_vector, warn_rolled
+from .sensor import apply_depth_sensor, split_aovs
 from .trace import instance_box, posed_solid, solid_box
 
 BLOCK_ARG, AOV_ARG = 15, 16  # positions of these among the batch kernel's arguments
@@ -296,6 +298,11 @@ def batch_kernel_for(F: Features, packets: bool):
     return batch_render
 
 
+def _out_dtype(name: str):
+    """The numpy type of an output: an AOV's, float32 for the depth sensor's."""
+    return AOVS[name].out if name in AOVS else np.float32
+
+
 @dataclass
 class BatchResult(Displayed):
     """A batch render: every world's and camera's image on the device (``color``, also
@@ -337,7 +344,7 @@ class BatchResult(Displayed):
                 raise RenderError(f"{name} must be an integer index below {n}, got {value!r:.60}")
         world, camera = int(world) % W, int(camera) % C
         image = np.array(self.color[world, camera].numpy(), copy=True)
-        aovs = {name: np.array(a[world, camera].numpy(), dtype=AOVS[name].out, copy=True)
+        aovs = {name: np.array(a[world, camera].numpy(), dtype=_out_dtype(name), copy=True)
                 for name, a in self.aovs.items()}
         meta = {**self.metadata, "warprt_world": world, "warprt_camera": camera}
         if self.cameras is not None:
@@ -372,7 +379,7 @@ class BatchResult(Displayed):
 
     def aovs_numpy(self) -> dict:
         """The AOVs as numpy copies: (W, C, H, Wpx[, channels])."""
-        return {name: np.array(a.numpy(), dtype=AOVS[name].out, copy=True) for name, a in self.aovs.items()}
+        return {name: np.array(a.numpy(), dtype=_out_dtype(name), copy=True) for name, a in self.aovs.items()}
 
     @property
     def mpix_per_s(self) -> float:
@@ -410,7 +417,7 @@ class BatchRenderer:
 
     def __init__(self, scene: Scene, worlds: int = 1, cameras: int = 1, device: str | None = None,
                  motion_blur: bool = False, features: Features | None = None, check_inputs: bool = True,
-                 background_compile: bool | None = None):
+                 background_compile: bool | None = None, up_axis=None):
         if not isinstance(scene, Scene):
             raise RenderError(f"BatchRenderer needs a warprt.Scene, got {type(scene).__name__}")
         if features is not None and not isinstance(features, Features):
@@ -421,6 +428,9 @@ class BatchRenderer:
         #: check the pose arrays, light positions and fields of view on the device before each
         #: render (warprt.checks); False once a pipeline trusts what it writes there
         self.check_inputs = bool(check_inputs)
+        #: the world's up axis (a unit vector; default the scene camera's ``up``): camera poses
+        #: rolled against it are warned about (warprt.poses)
+        self.up_axis = up_vector(scene.camera.up if up_axis is None else up_axis, "up_axis")
         self.worlds = _positive_int(worlds, "worlds")
         self.cameras = _positive_int(cameras, "cameras")
         _warp.init()
@@ -600,11 +610,18 @@ class BatchRenderer:
         wp.copy(self.shape_poses_end, self._check_poses(poses if end is None else end, shape, "shape_poses_end"))
 
     def set_camera_poses(self, poses, end=None) -> None:
-        """Camera-to-world poses, (W, C) (the camera looks along its local -z, +y up); ``end``:
-        at shutter close (default: the same)."""
+        """Camera-to-world poses, (W, C) (the camera looks along its local -z, +y up; make them
+        with :func:`warprt.look_at`); ``end``: at shutter close (default: the same). Poses given
+        on the host and rolled against ``up_axis`` by more than 45° are warned about
+        (:class:`warprt.poses.CameraRollWarning`)."""
         shape = (self.worlds, self.cameras)
-        wp.copy(self.camera_poses, self._check_poses(poses, shape, "camera_poses"))
-        wp.copy(self.camera_poses_end, self._check_poses(poses if end is None else end, shape, "camera_poses_end"))
+        start = self._check_poses(poses, shape, "camera_poses")
+        close = self._check_poses(poses if end is None else end, shape, "camera_poses_end")
+        for name, given in (("camera_poses", poses), ("camera_poses_end", end)):
+            if given is not None and not isinstance(given, wp.array):  # (device arrays are not read back)
+                warn_rolled((start if name == "camera_poses" else close).numpy(), self.up_axis, name)
+        wp.copy(self.camera_poses, start)
+        wp.copy(self.camera_poses_end, close)
 
     def _check_arrays(self) -> None:
         """The pose arrays are attributes a pipeline may replace: each must still be a wp.array
@@ -652,10 +669,11 @@ class BatchRenderer:
         """Render every world and camera with ``spp`` samples per pixel from the current pose
         arrays. The colour stays on the device: ``BatchResult.color`` is a (W, C, H, Wpx) vec3
         ``wp.array`` (``.numpy()`` gives (W, C, H, Wpx, 3) float32; DLPack shares it with torch
-        or JAX); ``aovs`` (names of ``warprt.aov.AOVS``) come in ``BatchResult.aovs`` the same
+        or JAX); ``aovs`` (names of ``warprt.aov.AOVS``, and ``sensor_z`` / ``sensor_depth`` with
+        the scene's ``depth_sensor``: ``warprt.sensor``) come in ``BatchResult.aovs`` the same
         way, averaged over the colour's samples. The arrays are reused by the next render: copy
         them to keep them."""
-        aovs = check_aov_names(aovs) if aovs else []
+        asked, aovs, sensor_names = split_aovs(aovs, self.scene)  # (the depth sensor's: warprt.sensor)
         spp = _positive_int(spp, "spp")
         if spp > SPP_LIMIT:
             raise RenderError(f"spp must be <= {SPP_LIMIT}, got {spp}")
@@ -709,6 +727,13 @@ class BatchRenderer:
         run_pass(self._pool.get(workers), launches, workers, 0, spp)
         shape = (self.worlds, self.cameras, self.height, self.width)
         aov_maps = {} if target is None else target.maps(shape, as_warp=True)
+        if sensor_names:
+            self._sensor_out = made = apply_depth_sensor(
+                self.scene.depth_sensor, {n: getattr(target.data.out, n) for n in target.names},
+                self.camera_poses.reshape(-1), self.height * self.width, int(seed), sensor_names,
+                getattr(self, "_sensor_out", None))
+            aov_maps.update({name: a.reshape(shape) for name, a in made.items()})
+            aov_maps = {name: aov_maps[name] for name in asked}
         wp.synchronize_device(dev)
         wall = _time.perf_counter() - start
         return BatchResult(color=self._color.reshape(shape), spp=spp, wall_time=wall, film=self.film, aovs=aov_maps,

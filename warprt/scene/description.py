@@ -676,6 +676,97 @@ class DiskLight:
         return Disk(self.center, self.normal, self.radius)
 
 
+# --- depth sensor ---------------------------------------------------------------------------
+
+INVALID_DEPTH = ("nan", "zero")  # DepthSensor.invalid
+
+
+@checked_keywords
+@dataclass(frozen=True)
+class DepthSensor:
+    """What a depth camera reports instead of the exact depth: stereo noise, range limits and
+    dropouts at grazing angles (``sensor_z`` and ``sensor_depth`` outputs; :mod:`warprt.sensor`).
+
+    * **stereo noise**: the sensor measures the disparity d = f·b / Z (``focal_length`` f in
+      pixels, ``baseline`` b in scene units) with a Gaussian error of ``disparity_sigma`` pixels,
+      rounded to ``disparity_step`` pixels when that is set, and reports Z' = f·b / d'. To first
+      order σ_Z = Z²·σ_d / (f·b) (:meth:`sigma_z`).
+    * **range limits**: a reported Z' outside [``min_range``, ``max_range``] is invalid.
+    * **grazing-angle dropouts**: a pixel whose surface normal makes an angle θ with the ray back
+      to the camera is dropped with probability 0 for θ < ``dropout_start``, 1 for θ >=
+      ``dropout_end`` and (θ - start) / (end - start) in between (:meth:`dropout_probability`);
+      start 90 (the default) drops nothing.
+
+    Invalid pixels (and pixels that see nothing) read ``invalid``: ``"nan"`` or ``"zero"``.
+    Every effect is off by default; the noise is seeded by the render's seed.
+    """
+
+    baseline: float | None = None  # b: distance between the stereo pair's centres, scene units
+    focal_length: float | None = None  # f: the stereo pair's focal length, pixels
+    disparity_sigma: float = 0.0  # σ_d: standard deviation of the disparity error, pixels
+    disparity_step: float = 0.0  # disparity quantisation step, pixels (0: none; 1/8 for subpixel 3 bits)
+    min_range: float = 0.0  # shortest valid reported depth Z', scene units
+    max_range: float = math.inf  # longest valid reported depth Z', scene units
+    dropout_start: float = 90.0  # degrees: no dropouts below this angle
+    dropout_end: float = 90.0  # degrees: every pixel dropped from this angle on
+    invalid: str = "nan"  # value of invalid pixels: "nan" or "zero"
+
+    def __post_init__(self):
+        for name in ("baseline", "focal_length"):
+            if getattr(self, name) is not None:
+                set_field(self, name, as_float(getattr(self, name), name, minimum=0.0, strict_min=True,
+                                               float32="normal"))
+        set_field(self, "disparity_sigma", as_float(self.disparity_sigma, "disparity_sigma", minimum=0.0,
+                                                    float32="range"))
+        set_field(self, "disparity_step", as_float(self.disparity_step, "disparity_step", minimum=0.0,
+                                                   float32="range"))
+        if self.stereo:
+            for name in ("baseline", "focal_length"):
+                if getattr(self, name) is None:
+                    raise SceneError("needed with disparity_sigma or disparity_step (the disparity is "
+                                     "focal_length · baseline / Z)", name)
+        set_field(self, "min_range", as_float(self.min_range, "min_range", minimum=0.0, float32="range"))
+        r = self.max_range
+        if isinstance(r, (int, float)) and not isinstance(r, bool) and r == math.inf:
+            set_field(self, "max_range", math.inf)
+        else:
+            set_field(self, "max_range", as_float(r, "max_range", minimum=0.0, strict_min=True, float32="range"))
+        if self.max_range <= self.min_range:
+            raise SceneError(f"must exceed min_range ({self.min_range:g}), got {self.max_range:g}", "max_range")
+        for name in ("dropout_start", "dropout_end"):
+            set_field(self, name, as_float(getattr(self, name), name, minimum=0.0, maximum=90.0))
+        if self.dropout_end < self.dropout_start:
+            raise SceneError(f"must be >= dropout_start ({self.dropout_start:g}), got {self.dropout_end:g}",
+                             "dropout_end")
+        set_field(self, "invalid", as_choice(self.invalid, "invalid", INVALID_DEPTH))
+
+    @property
+    def stereo(self) -> bool:
+        """Whether depth goes through the disparity (noise or quantisation)."""
+        return self.disparity_sigma > 0.0 or self.disparity_step > 0.0
+
+    @property
+    def dropouts(self) -> bool:
+        return self.dropout_start < 90.0
+
+    def sigma_z(self, z):
+        """The first-order standard deviation of the reported depth at true depth ``z``:
+        z² · disparity_sigma / (focal_length · baseline) (0 without stereo noise)."""
+        if not self.disparity_sigma:
+            return 0.0 * np.asarray(z, np.float64)
+        return np.asarray(z, np.float64) ** 2 * self.disparity_sigma / (self.focal_length * self.baseline)
+
+    def dropout_probability(self, angle):
+        """The probability that a pixel seeing its surface at ``angle`` degrees from the normal
+        is dropped."""
+        a = np.asarray(angle, np.float64)
+        if not self.dropouts:
+            return np.zeros_like(a)
+        if self.dropout_end == self.dropout_start:
+            return (a >= self.dropout_end).astype(np.float64)
+        return np.clip((a - self.dropout_start) / (self.dropout_end - self.dropout_start), 0.0, 1.0)
+
+
 # --- render settings and the scene ------------------------------------------------------------
 
 
@@ -816,6 +907,7 @@ class Scene:
     render: RenderSettings = field(default_factory=RenderSettings)
     animation: Animation = field(default_factory=Animation)
     source: str | None = None  # the scene file, for messages and relative mesh paths
+    depth_sensor: DepthSensor | None = None  # what the sensor_z and sensor_depth outputs report
 
     def __post_init__(self):
         try:
@@ -827,6 +919,9 @@ class Scene:
         for name, cls in (("camera", Camera), ("render", RenderSettings), ("animation", Animation)):
             if not isinstance(getattr(self, name), cls):
                 raise SceneError(f"expected a {cls.__name__}, got {type(getattr(self, name)).__name__}", name)
+        if self.depth_sensor is not None and not isinstance(self.depth_sensor, DepthSensor):
+            raise SceneError(f"expected a DepthSensor or None, got {type(self.depth_sensor).__name__}",
+                             "depth_sensor")
         for name, kinds in (("shapes", SHAPE_TYPES), ("lights", LIGHT_TYPES)):
             value = getattr(self, name)
             if isinstance(value, tuple(kinds.values())):

@@ -27,8 +27,8 @@ from dataclasses import fields
 from typing import Any, Mapping
 
 from ..errors import SceneError
-from .description import LIGHT_TYPES, SHAPE_TYPES, Animation, Camera, Material, RenderSettings, Scene
-TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights", "animation"}
+from .description import LIGHT_TYPES, SHAPE_TYPES, Animation, Camera, DepthSensor, Material, RenderSettings, Scene
+TOP_LEVEL = {"camera", "render", "world", "materials", "shapes", "lights", "animation", "depth_sensor"}
 WORLD_FIELDS = {"ambient", "background"}
 # [[shapes]] type = "assets": a glTF/GLB file (or any multi-object file trimesh reads) loaded by
 # warprt.scene.assets.load_assets into one mesh shape per node, with its materials
@@ -112,6 +112,7 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
         camera = _make(Camera, data.get("camera", {}), "camera")
         render = _make(RenderSettings, data.get("render", {}), "render")
         animation = _make(Animation, data.get("animation", {}), "animation")
+        sensor = _make(DepthSensor, data["depth_sensor"], "depth_sensor") if "depth_sensor" in data else None
         world = data.get("world", {})
         if not isinstance(world, Mapping):
             raise SceneError("expected a table", "world")
@@ -133,7 +134,7 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
         kwargs = {k: world[k] for k in WORLD_FIELDS if k in world}
         try:
             return Scene(camera=camera, shapes=tuple(shapes), materials=materials, lights=tuple(lights),
-                         render=render, animation=animation, source=source, **kwargs)
+                         render=render, animation=animation, source=source, depth_sensor=sensor, **kwargs)
         except SceneError as e:
             raise (e if e.field and e.field.split(".")[0].split("[")[0] in TOP_LEVEL else e.within("world")) from None
     except SceneError as e:
