@@ -18,15 +18,19 @@ import numpy as np
 import warp as wp
 
 from .errors import RenderError, SceneError
-from .scene.description import Mesh, validate_arrays
+from .scene.description import Mesh, validate_arrays, validate_uv
 
 CACHE_ENTRIES = 16  # parsed mesh files kept (least recently used goes first)
 
-_file_cache: "OrderedDict[tuple, tuple[np.ndarray, np.ndarray]]" = OrderedDict()
+_file_cache: "OrderedDict[tuple, tuple]" = OrderedDict()
 _file_lock = threading.Lock()
 
 
-def read_mesh_file(path: str) -> tuple[np.ndarray, np.ndarray]:
+def read_mesh_file(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A mesh file's vertices, faces and per-vertex texture coordinates (None where the file has
+    none), read through trimesh without processing (vertex order kept; trimesh splits vertices
+    whose UVs differ and puts every format's UVs in OBJ's convention, v = 0 at the image's
+    bottom)."""
     try:
         st = os.stat(path)
     except OSError:
@@ -46,11 +50,17 @@ def read_mesh_file(path: str) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(v) == 0 or len(f) == 0:
         raise SceneError(f"mesh file {os.path.basename(path)!r} holds no triangles", "file")
+    uv = getattr(getattr(loaded, "visual", None), "uv", None)
+    if uv is not None:
+        try:
+            uv = validate_uv(uv, len(v))
+        except SceneError as e:
+            raise SceneError(f"mesh file {os.path.basename(path)!r}: {e.problem}", "file") from None
     with _file_lock:
-        _file_cache[key] = (v, f)
+        _file_cache[key] = (v, f, uv)
         while len(_file_cache) > CACHE_ENTRIES:
             _file_cache.popitem(last=False)
-    return v, f
+    return v, f, uv
 
 
 def prepare_mesh(v: np.ndarray, f: np.ndarray, degenerate: str = "error") -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +104,7 @@ def asset_key(m: Mesh) -> tuple:
     if m.file is not None:
         return ("file", m.file, m.degenerate)
     h = hashlib.blake2b(digest_size=16)
-    for a in (m.vertices, m.faces):
+    for a in (m.vertices, m.faces) + (() if m.uv is None else (m.uv,)):
         h.update(str(a.shape).encode())
         h.update(np.ascontiguousarray(a).tobytes())
     return ("arrays", h.hexdigest(), m.degenerate)
