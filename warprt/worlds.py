@@ -46,7 +46,7 @@ from . import _warp, kernels
 from ._warp import build_once
 from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
-from .checks import EXTENT_LIMIT, check_batch, describe_transform
+from .checks import EXTENT_LIMIT, NONE, check_batch, describe_transform
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
 from .aov import AOVS, AovData, AovTarget, check_aov_names, no_aovs
@@ -770,29 +770,27 @@ class BatchRenderer:
         wp.copy(self.light_intensities,
                 self._looks_array(intensities, (self.worlds, max(self._n_lights, 1)), "light_intensities", wp.vec3))
 
-    def _check_looks(self) -> None:
-        """The looks' arrays on the device: a RenderError naming the first bad element of each."""
-        check = _pose_kernels()[5]
-        if getattr(self, "_looks_answer", None) is None:
-            self._looks_answer = wp.empty(3, dtype=int, device=self.device)
-        first = self._looks_answer
-        first.fill_(1 << 30)
+    def _check_looks(self, first: "wp.array") -> None:
+        """Launch the check of the looks' arrays on the device: the first bad element of each
+        into ``first`` (three ints, NONE where none; read with the poses' check, warprt.checks)."""
         W, M, L = self.worlds, len(self.material_names), max(self._n_lights, 1)
-        wp.launch(check, dim=(W, max(M, L)), device=self.device,
+        wp.launch(_pose_kernels()[5], dim=(W, max(M, L)), device=self.device,
                   inputs=[self.material_colors, self.material_textures, len(self.built.textures),
                           self.light_intensities, first])
-        found = first.numpy()
+
+    def _looks_problems(self, found) -> list:
+        """What ``_check_looks`` found, as messages naming each array's first bad element."""
         problems = []
-        for slot, (name, n) in enumerate((("material_colors", M), ("material_textures", M),
-                                          ("light_intensities", L))):
-            if found[slot] != 1 << 30:
+        for slot, (name, n) in enumerate((("material_colors", len(self.material_names)),
+                                          ("material_textures", len(self.material_names)),
+                                          ("light_intensities", max(self._n_lights, 1)))):
+            if found[slot] != NONE:
                 w, j = divmod(int(found[slot]), n)
                 value = getattr(self, name)[w:w + 1].numpy()[0][j]
                 what = (f"a texture index must be -1 (none) or below {len(self.built.textures)}"
                         if slot == 1 else "must be finite and >= 0")
                 problems.append(f"{name}[{w}, {j}]: {what}, got {np.asarray(value).tolist()}")
-        if problems:
-            raise RenderError("; ".join(problems))
+        return problems
 
     def _check_arrays(self) -> None:
         """The pose arrays are attributes a pipeline may replace: each must still be a wp.array
@@ -859,7 +857,6 @@ class BatchRenderer:
         if self.check_inputs:  # NaN poses, non-unit quaternions, a zero fov: named, before rendering
             check_batch(self, self.shape_poses_end if self.motion_blur else self.shape_poses,
                         self.camera_poses_end if self.motion_blur or self.scene.camera.moves else self.camera_poses)
-            self._check_looks()
         rows = self.worlds * self.cameras * self.height
         # (None: on the CPU one launch per worker, claiming blocks of rows from the film's counter;
         # slices=N: N fixed interleaved sets of blocks)
