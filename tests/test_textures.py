@@ -471,3 +471,39 @@ def test_gltf_metallic_map_splits_diffuse_and_mirror(quad_files):
     mM = m * (metal[..., 2:3] / 255.0)
     want = np.array(b) * B * (1 - mM) + 0.5 * np.array(b) * B * mM
     np.testing.assert_allclose(render(scene), want, atol=TOL, rtol=0)
+
+
+def test_newton_bridge_sets_each_worlds_shape_colours_textures_and_lights():
+    """The bridge's per-shape looks land in the batch's per-material arrays (shape j is material
+    j); a new colour for one shape in one world scales that shape's pixels there (Lambert: the
+    colour is a factor) and leaves every other pixel and world as it was, with no rebuild or
+    recompile (the colours need no texture code: the bridge tests' own kernel)."""
+    pytest.importorskip("newton")
+    from tests.test_newton_bridge import FOV, model, moved_state
+    from warprt.newton_bridge import NewtonRenderer, look_at_pose
+
+    m = model()
+    r = NewtonRenderer(m, cameras=1, camera=warprt.Camera(fov=FOV, width=48, height=40),
+                       render=RenderSettings(sampler="regular", spp=1))
+    r.set_camera_poses(np.array([[look_at_pose((3.0, -3.0, 2.2), (0.3, 0.2, 0.3))]] * 2))
+    r.update(moved_state(m))
+    before = r.render().numpy()
+    counters = dict(r.counters)
+    S = len(r.scene.shapes)
+    colors = r.batch.material_colors.numpy()[:, :S].copy()
+    colors[1, 1] *= 2.0  # world 1's box (shape 1; shape 0 is the ground)
+    r.set_shape_colors(colors)
+    r.set_light_intensities(np.ones((2, 1, 3)))
+    after = r.render().numpy()
+    assert r.counters["rebuilds"] == counters["rebuilds"] and r.counters["compiles"] == counters["compiles"]
+    np.testing.assert_array_equal(after[0], before[0])
+    changed = np.any(after[1] != before[1], axis=-1)
+    assert changed.sum() > 20
+    np.testing.assert_allclose(after[1][changed], 2.0 * before[1][changed], rtol=1e-6)
+    with pytest.raises(warprt.RenderError, match="textures="):
+        r.set_shape_textures(np.zeros((2, S), int))
+    textured = NewtonRenderer(m, textures=[Texture(checker=[0.2, 1.0], scale=4.0, projection="cubic")])
+    marble = textured.add_texture(Texture(checker=[0.5, 0.9], projection="triplanar"))
+    textured.set_shape_textures([[-1, 0, marble], [marble, -1, 0]])
+    np.testing.assert_array_equal(textured.batch.material_textures.numpy()[:, :S], [[-1, 0, marble], [marble, -1, 0]])
+    assert len(textured.textures) == 2 and marble == 1
