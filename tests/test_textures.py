@@ -507,3 +507,36 @@ def test_newton_bridge_sets_each_worlds_shape_colours_textures_and_lights():
     textured.set_shape_textures([[-1, 0, marble], [marble, -1, 0]])
     np.testing.assert_array_equal(textured.batch.material_textures.numpy()[:, :S], [[-1, 0, marble], [marble, -1, 0]])
     assert len(textured.textures) == 2 and marble == 1
+
+
+def test_projection_on_analytic_shapes():
+    """A plane seen from above with a cubic checker (its normal +y: the y map, (x_x, x_z)) and a
+    sphere with a triplanar bitmap in its frame (the offset from its centre, the normal d): both
+    the closed forms, pixel by pixel (checker edges within float32 reach left out)."""
+    c0, c1 = (0.9, 0.6, 0.2), (0.1, 0.2, 0.5)
+    centre = np.array([0.4, 0.5, -0.3])
+    scene = Scene(camera=Camera(eye=(0.3, 4.0, 2.5), look_at=(0.2, 0.0, 0.0), width=40, height=30),
+                  shapes=[Plane(material="floor"), Sphere(center=tuple(centre), radius=0.6, material="ball")],
+                  materials={"floor": Material(kd=1.0, texture=Texture(checker=[c0, c1], scale=3.0, projection="cubic")),
+                             "ball": Material(kd=1.0, texture=Texture(image=IMAGE, projection="triplanar", scale=0.7,
+                                                                      sharpness=2.0))},
+                  ambient=1.0, render=RenderSettings(sampler="regular"))
+    _, _, hits = pixel_hits(scene)
+    got = render(scene).reshape(-1, 3)
+    p = hits["position"].astype(np.float64)
+    floor = hits["shape"] == 0
+    u, v = 3.0 * p[:, 0], 3.0 * p[:, 2]
+    edge = (np.abs(u - np.round(u)) < 1e-4) | (np.abs(v - np.round(v)) < 1e-4)
+    keep = floor & ~edge
+    assert keep.sum() > 400
+    np.testing.assert_allclose(got[keep], checker_ref(c0, c1, u, v)[keep], atol=1e-6, rtol=0)
+    ball = hits["shape"] == 1
+    x = p[ball] - centre
+    n = np.abs(x / np.linalg.norm(x, axis=1, keepdims=True))
+    texels = srgb_to_linear(IMAGE / 255.0)
+    maps = [bilinear_ref(texels, 0.7 * x[:, 2], 0.7 * x[:, 1]), bilinear_ref(texels, 0.7 * x[:, 0], 0.7 * x[:, 2]),
+            bilinear_ref(texels, 0.7 * x[:, 0], 0.7 * x[:, 1])]
+    w = n ** 2.0
+    want = sum(w[:, k:k + 1] * maps[k] for k in range(3)) / w.sum(axis=1, keepdims=True)
+    assert ball.sum() > 50
+    np.testing.assert_allclose(got[ball], want, atol=2e-5, rtol=0)
