@@ -23,7 +23,7 @@ import numpy as np
 import warp as wp
 
 from .geometry import abs3
-from .records import KIND_BOX, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE, TEX_BITMAP, TEX_CHECKER, \
+from .records import KIND_BOX, KIND_MESH, KIND_RECT, KIND_SPHERE, TEX_BITMAP, TEX_CHECKER, \
     Features, MatRec, SceneData, TexRec, table
 from .scene.texture import PROJECTIONS, WRAPS, Texture
 from .trace import Hit, make_trace, to_object

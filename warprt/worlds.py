@@ -14,6 +14,11 @@ builds the scene once and keeps, on the device:
 * ``light_positions`` (W, L) ``vec3``: the position of each point light and the direction of
   travel of each directional light (L = those lights, in ``scene.lights`` order). Area lights
   are the same in every world.
+* ``material_colors`` (W, M) ``vec3``, ``material_textures`` (W, M) int32 and
+  ``light_intensities`` (W, L) ``vec3``: each world's looks (domain randomisation): the diffuse
+  colour kd of each of the scene's M materials (ka keeps its ratio to kd), its texture (an index
+  into ``textures``, -1 none; the kernel has texture code where the scene has a texture or
+  ``textures=[...]`` is given) and each point or directional light's intensity.
 * ``camera_poses`` (W, C) ``wp.transform``: camera to world; the camera looks along its local
   -z with +y up (the OpenGL convention). ``camera_poses_end``: at shutter close (the up vector
   is the shutter-open one). ``fov`` (C,) float32: each camera's vertical field of view in
