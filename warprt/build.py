@@ -23,7 +23,8 @@ from . import accel, fast
 from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes, light_buffer
 from .camera import camera_data
 from .errors import RenderError, SceneError
-from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
+from .meshes import as_points, asset_key, prepare_mesh, vertex_normals
+from .scene.meshfile import read_mesh_file
 from .records import (
     ANALYTIC_BVH_MIN, FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
     features_of, table,

@@ -24,6 +24,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import SceneError
+from .meshfile import read_mesh_file, validate_uv
 from .texture import Texture, as_texture
 from .transform import Transform, as_transform, quaternion_product, quaternion_y_to, same_hemisphere
 from .values import (
@@ -577,24 +578,6 @@ def validate_arrays(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
-def validate_uv(uv: Any, n_vertices: int) -> np.ndarray:
-    """Per-vertex texture coordinates as a read-only float64 (N, 2) array, else a SceneError on
-    ``uv`` naming the shape it has or the first bad value."""
-    try:
-        a = np.array(uv, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(f"expected ({n_vertices}, 2) numbers (one (u, v) per vertex), got {type(uv).__name__}",
-                         "uv") from None
-    if a.shape != (n_vertices, 2):
-        raise SceneError(f"expected shape ({n_vertices}, 2) (one (u, v) per vertex), got {a.shape}", "uv")
-    bad = ~np.isfinite(a).all(axis=1) | (np.abs(np.nan_to_num(a)) > 1e30).any(axis=1)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise SceneError(f"uv[{i}] = {a[i].tolist()} is not a finite coordinate (|u|, |v| <= 1e30)", "uv")
-    a.setflags(write=False)
-    return a
-
-
 # --- lights --------------------------------------------------------------------------------
 
 
@@ -839,9 +822,7 @@ def _has_uv(shape) -> bool:
     if isinstance(shape, Mesh):
         if shape.file is None:
             return shape.uv is not None
-        from ..meshes import read_mesh_file  # (a parsed file is cached for the build)
-
-        return read_mesh_file(shape.file)[2] is not None
+        return read_mesh_file(shape.file)[2] is not None  # (the parsed file is cached for the build)
     return False
 
 
