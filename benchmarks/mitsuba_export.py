@@ -7,7 +7,8 @@ Used by the six-scene side by side (``benchmarks.peers``) and the corpus (``benc
 
 * camera: ``perspective`` (``thinlens`` with an aperture; both focus on a plane) with the
   vertical field of view, a box pixel filter, no border samples;
-* materials: Lambert (kd only) as ``twosided(diffuse)``; a perfect mirror (kd = ks = kt = 0,
+* materials: Lambert (kd only) as ``twosided(diffuse)``, a bitmap ``texture`` by uv as its
+  ``bitmap`` reflectance (``bitmap``: the same linear texels, bilinear, flipped to Mitsuba's v); a perfect mirror (kd = ks = kt = 0,
   km > 0, no glossy lobe) as ``twosided(conductor)`` with ``material = "none"`` (F = 1) and
   ``specular_reflectance`` = km; clear glass (kd = ks = km = 0, kt > 0, ``fresnel = "exact"``,
   no frosted lobe) as ``dielectric`` with ``int_ior`` = ior, ``ext_ior`` = 1 (not Mitsuba's
@@ -166,6 +167,12 @@ _BLACK = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 
 
 def material_kind(m: warprt.Material) -> str:
     """"lambert", "mirror" or "glass"; ExportError for what Mitsuba has no BSDF for."""
+    if m.specular_texture is not None or m.mirror_texture is not None:
+        raise ExportError("specular and mirror textures have no Mitsuba counterpart here (a diffuse bitmap does)")
+    t = m.texture
+    if t is not None and (t.kind != "bitmap" or t.projection != "uv"):
+        raise ExportError(f"a {t.kind} texture projected by {t.projection!r}: only a bitmap by uv exports "
+                          "(Mitsuba's bitmap texture)")
     nz = {k: bool(np.any(np.asarray(getattr(m, k), dtype=float) != 0)) for k in ("kd", "ks", "mirror", "transparency")}
     if nz["ks"]:
         raise ExportError("material has ks > 0: Blinn-Phong has no Mitsuba BSDF with the same weights")
@@ -190,12 +197,26 @@ def material_kind(m: warprt.Material) -> str:
 def bsdf(m: warprt.Material) -> dict:
     kind = material_kind(m)
     if kind == "lambert":
+        if m.texture is not None:
+            return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": bitmap(m.texture, m.kd)}}
         return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": _rgb(m.kd)}}
     if kind == "mirror":
         return {"type": "twosided", "bsdf": {"type": "conductor", "material": "none",
                                              "specular_reflectance": _rgb(m.mirror)}}
     return {"type": "dielectric", "int_ior": float(m.ior), "ext_ior": 1.0,
             "specular_reflectance": _rgb(m.transparency), "specular_transmittance": _rgb(m.transparency)}
+
+
+def bitmap(tex, kd) -> dict:
+    """A warprt bitmap texture times kd as Mitsuba's ``bitmap`` texture: warprt's decoded linear
+    texels (float32, so Mitsuba decodes nothing), bilinear, the same wrap mode, ``to_uv`` scaled
+    by the texture's scale. Mitsuba's v runs down the image (row 0 at v = 0), warprt's up (OBJ's
+    convention): the rows go in flipped."""
+    import mitsuba as mi
+
+    data = np.ascontiguousarray(np.flipud(tex.texels * np.asarray(kd, np.float32)), dtype=np.float32)
+    return {"type": "bitmap", "bitmap": mi.Bitmap(data), "raw": True, "filter_type": "bilinear",
+            "wrap_mode": tex.wrap, "to_uv": mi.ScalarTransform4f().scale([tex.scale, tex.scale, 1.0])}
 
 
 # --- frames and files ----------------------------------------------------------------------------

@@ -20,6 +20,7 @@ import pytest
 import warp as wp
 
 import warprt
+from warprt.checks import BATCH_SLOTS
 from warprt.errors import RenderError
 from warprt.worlds import BatchRenderer
 
@@ -244,9 +245,9 @@ def test_update_loop_makes_no_host_copy_no_rebuild_and_no_compile(monkeypatch):
 
         monkeypatch.setattr(owner, name, counted)
 
-    # the device check of the inputs (warprt.checks) reads back its answer, six integers, once a render
-    wrap(wp.array, "numpy", "check_reads", lambda self: self.size == 6 and self.dtype == wp.int32)
-    wrap(wp.array, "numpy", "numpy", lambda self: not (self.size == 6 and self.dtype == wp.int32))
+    # the device check of the inputs (warprt.checks) reads back its answer, nine integers, once a render
+    wrap(wp.array, "numpy", "check_reads", lambda self: self.size == BATCH_SLOTS and self.dtype == wp.int32)
+    wrap(wp.array, "numpy", "numpy", lambda self: not (self.size == BATCH_SLOTS and self.dtype == wp.int32))
     wrap(wp.array, "assign", "assign")
     wrap(wp.array, "__init__", "from_host",
          lambda self, data=None, *a, **k: data is not None and not isinstance(data, wp.array))

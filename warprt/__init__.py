@@ -26,7 +26,7 @@ _EXPORTS = {
     "camera_rays": "query", "trace_rays": "query", "load_assets": "scene.assets",
     "Renderer": "render", "RenderResult": "render",
     "BatchRenderer": "worlds", "BatchResult": "worlds", "FrameResult": "results", "RenderLayers": "results",
-    "linear_to_srgb": "colour", "srgb_to_linear": "colour", "look_at": "poses",
+    "linear_to_srgb": "colour", "srgb_to_linear": "colour", "look_at": "poses", "Texture": "scene.texture",
     **{name: "scene" for name in (
         "Animation", "Box", "Camera", "Capsule", "Cylinder", "DepthSensor", "DirectionalLight", "Disk", "DiskLight", "Material",
         "Mesh", "Plane", "PointLight", "Rectangle", "RectLight", "RenderSettings", "Scene", "Sphere", "SphereLight",
@@ -39,7 +39,7 @@ __all__ = [
     "RectLight", "RenderError", "RenderResult", "RenderSettings", "Renderer", "Scene", "SceneError", "Sphere",
     "SphereLight", "Transform", "load_scene", "parse_scene", "check_output", "read_exr", "render", "save_image",
     "scene_from_string", "camera_rays", "trace_rays", "load_assets", "FrameResult", "RenderLayers", "linear_to_srgb",
-    "srgb_to_linear", "DepthSensor", "look_at",
+    "srgb_to_linear", "DepthSensor", "look_at", "Texture",
 ]
 
 

@@ -224,6 +224,9 @@ def make_aov_sample(F: Features):
     trace = make_trace(F)
     sphere_center, instance_pose = trace.sphere_center, trace.instance_pose
     solid_pose, solid_rec = trace.solid_pose, trace.solid_rec
+    from .textures import make_textures  # (textures imports trace, as this module does)
+
+    textured = make_textures(F)
 
     @wp.func
     def point_motion(scene: SceneData, cam: CameraData, h: Hit, time: float) -> wp.vec2:
@@ -311,6 +314,8 @@ def make_aov_sample(F: Features):
                 alb = aov.out.albedo[pixel]
             if hit:
                 m = scene.mats[h.mat]
+                if wp.static(F.textures):
+                    m = textured(scene, h, time)
                 if wp.max(m.emit) > 0.0:
                     alb = alb + m.emit
                 else:

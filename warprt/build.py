@@ -23,7 +23,8 @@ from . import accel, fast
 from .accel import NO_TREE, BvhNode, MeshTree, build_tree, camera_bins, forest_nodes, light_buffer
 from .camera import camera_data
 from .errors import RenderError, SceneError
-from .meshes import as_points, asset_key, prepare_mesh, read_mesh_file, vertex_normals
+from .meshes import as_points, asset_key, prepare_mesh, vertex_normals
+from .scene.meshfile import read_mesh_file
 from .records import (
     ANALYTIC_BVH_MIN, FALLOFF_DIRECTIONAL, FRESNEL_IDS, KIND_MESH, KIND_RECT, AreaLightRec, Features, InstRec, MatRec, PointLightRec, RenderParams, SceneData,
     features_of, table,
@@ -35,12 +36,16 @@ from .scene.description import (
 )
 from .scene.transform import Transform, same_hemisphere
 from .shapes import BY_CLASS, BY_TAG, KINDS, rect_pieces
+from .textures import TexturePool
 from .trace import instance_box_kernel
 
 
 # each mesh asset's extent (the diagonal of its vertices' box, float64), measured once when its
 # wp.Mesh is built and kept as long as the mesh (for the underflow warning)
 _ASSET_EXTENT: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+# each mesh asset's per-vertex texture coordinates (float32 (N, 2); absent: none), kept as long as
+# the mesh
+_ASSET_UV: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class DeviceScene:
@@ -102,6 +107,9 @@ class DeviceScene:
         normals: list[np.ndarray] = []
         nrm_offsets: list[int] = []
         n_normals = 0
+        uvs: list[np.ndarray] = []
+        uv_offsets: list[int] = []
+        n_uvs = 0
         self.instance_assets: list[tuple] = []  # asset key of each mesh instance
         self.shape_ids: list[tuple[int, int]] = []  # (kind, row in its table) for each scene shape
         self._balls_given = False  # whether an instance record holds interior balls (refresh_balls)
@@ -113,7 +121,7 @@ class DeviceScene:
                     key = asset_key(s)
                     if key not in asset_ids:
                         if key not in self.assets:
-                            v, f = read_mesh_file(s.file) if s.file is not None else (s.vertices, s.faces)
+                            v, f, uv = read_mesh_file(s.file) if s.file is not None else (s.vertices, s.faces, s.uv)
                             v32, f32 = prepare_mesh(v, f, s.degenerate)
                             # leaves of one triangle: on the CPU the tree is copied for warprt's own
                             # traversal (accel.MeshTree); CUDA keeps Warp's default leaves and query
@@ -127,6 +135,8 @@ class DeviceScene:
                             self.assets[key] = (mesh, vertex_normals(v32, f32), tree)
                             _ASSET_EXTENT[mesh] = float(np.linalg.norm(np.ptp(
                                 v32[f32.reshape(-1)].astype(np.float64), axis=0)))
+                            if uv is not None:
+                                _ASSET_UV[mesh] = np.asarray(uv, np.float32)
                         mesh, vn, tree = self.assets[key]
                         if tree is not None and tree.found_without != self.fast_off & accel._FOUND:
                             # (an asset another DeviceScene built with other switches: warprt.fast)
@@ -137,6 +147,11 @@ class DeviceScene:
                         normals.append(vn)
                         nrm_offsets.append(n_normals)
                         n_normals += len(vn)
+                        asset_uv = _ASSET_UV.get(mesh)
+                        uv_offsets.append(-1 if asset_uv is None else n_uvs)
+                        if asset_uv is not None:
+                            uvs.append(asset_uv)
+                            n_uvs += len(asset_uv)
                     a = asset_ids[key]
                     t0 = s.transform or Transform()
                     t1 = s.transform_end or t0
@@ -145,7 +160,7 @@ class DeviceScene:
                     q0 = t0.quaternion()
                     ins.append(dict(mesh=self.meshes[a].id, pos0=t0.translate, rot0=q0, scl0=t0.scale,
                                     pos1=t1.translate, rot1=same_hemisphere(t1.quaternion(), q0), scl1=t1.scale,
-                                    mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a],
+                                    mat=mi, smooth=int(s.smooth), nrm_off=nrm_offsets[a], uv_off=uv_offsets[a],
                                     olo=(0.0, 0.0, 0.0), ohi=(0.0, 0.0, 0.0), lo=(0.0, 0.0, 0.0), hi=(0.0, 0.0, 0.0),
                                     **self._tree_fields(trees[a])))
                 else:
@@ -186,9 +201,11 @@ class DeviceScene:
         self._view_renders = 0  # renders since the camera or the points last changed (rendering)
         d.normals = wp.array(np.concatenate(normals) if normals else np.zeros((1, 3), np.float32),
                              dtype=wp.vec3, device=dev)
-        d.mats = table(MatRec, [dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
-                                     fresnel=FRESNEL_IDS[m.fresnel], gloss=m.glossy_exponent,
-                                     frost=m.frosted_exponent, emit=le) for m, le in mats], dev)
+        d.uvs = wp.array(np.concatenate(uvs) if uvs else np.zeros((1, 2), np.float32), dtype=wp.vec2, device=dev)
+        self.textures = TexturePool()
+        self.material_rows = [material_row(m, le, self.textures) for m, le in mats]
+        d.mats = table(MatRec, self.material_rows, dev)
+        d.texs, d.texels = self.textures.upload(dev)
         d.n_alights = len(alights)
         d.alights = table(AreaLightRec, alights, dev)
         self._auto_samples = 1  # what the "auto" lights' rows hold (set_auto_light_samples; 0: the map's)
@@ -466,6 +483,13 @@ class DeviceScene:
             setattr(d, name, wp.array(np.concatenate(parts) if parts else np.zeros(1, np.int32), dtype=int,
                                       device=self.device))
         return out
+
+
+def material_row(m: Material, emit, pool: TexturePool) -> dict:
+    """A material's MatRec fields, its textures given rows of ``pool``."""
+    return dict(ka=m.ka, kd=m.kd, ks=m.ks, p=m.p, km=m.mirror, kt=m.transparency, ior=m.ior,
+                fresnel=FRESNEL_IDS[m.fresnel], gloss=m.glossy_exponent, frost=m.frosted_exponent, emit=emit,
+                tex=pool.add(m.texture), tex_s=pool.add(m.specular_texture), tex_m=pool.add(m.mirror_texture))
 
 
 def _padded(boxes: list) -> tuple[np.ndarray, np.ndarray]:

@@ -34,6 +34,9 @@ NONE = (1 << 31) - 1  # no bad element
 
 # the slots of check_batch's answer, in order
 BATCH_ARRAYS = ("shape_poses", "shape_poses_end", "camera_poses", "camera_poses_end", "light_positions", "fov")
+# a batch's per-world looks, checked by its own kernel into the same answer (warprt.worlds)
+LOOKS_ARRAYS = ("material_colors", "material_textures", "light_intensities")
+BATCH_SLOTS = len(BATCH_ARRAYS) + len(LOOKS_ARRAYS)
 
 
 @wp.func
@@ -145,13 +148,13 @@ def _element(a: "wp.array", i: int) -> np.ndarray:
 
 def check_batch(b, shape_poses_end, camera_poses_end) -> None:
     """Check a BatchRenderer's pose arrays, light positions and fields of view on its device
-    (one launch, one read of six integers); raise :class:`RenderError` for the first bad element
+    and its per-world looks (two launches, one read of nine integers); raise :class:`RenderError` for the first bad element
     of each array found, naming it."""
     batch, _, _ = _kernels()
     dev = b.device
     W, C, S, L = b.worlds, b.cameras, b._n_shapes, b._n_lights
     if getattr(b, "_check_answer", None) is None:
-        b._check_answer = _answer(len(BATCH_ARRAYS), dev)
+        b._check_answer = _answer(BATCH_SLOTS, dev)
         b._directional = wp.array(np.array(b._directional_lights or [0], np.int32), dtype=int, device=dev)
     first = b._check_answer
     first.fill_(NONE)
@@ -160,10 +163,11 @@ def check_batch(b, shape_poses_end, camera_poses_end) -> None:
               inputs=[b.shape_poses.flatten(), shape_poses_end.flatten(), W * S, b.camera_poses.flatten(),
                       camera_poses_end.flatten(), b.light_positions.flatten(), b._directional, L, b.fov,
                       float(EXTENT_LIMIT), float(QUAT_TOLERANCE), first])
+    b._check_looks(first[len(BATCH_ARRAYS):])
     found = first.numpy()
     if (found == NONE).all():
         return
-    problems = []
+    problems = b._looks_problems(found[len(BATCH_ARRAYS):])
     for slot, name in enumerate(BATCH_ARRAYS):
         i = int(found[slot])
         if i == NONE or (slot == 1 and shape_poses_end is b.shape_poses) or \

@@ -50,6 +50,7 @@ from .sampling import (
 )
 from .shading import fresnel, mul_sat, reflect, refract
 from .accel import PacketU, horizon_open, lane, lane_i
+from .textures import make_textures
 from .trace import MESH_PACKET_MIN, PACKET, PACKET_MIN, CameraPacket, Hit, MeshPacket, PacketF, PacketI, make_trace
 
 STACK_SIZE = 16
@@ -137,6 +138,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
     mesh_packet = trace.mesh_packet
     finish_packet_lane = trace.finish_packet_lane
     aov_sample = make_aov_sample(F)
+    textured = make_textures(F)
     point_lights_direct = lights.point_lights_direct
     area_lights_direct = lights.area_lights_direct
     area_lights_packet = lights.area_lights_packet
@@ -455,7 +457,15 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                     L += mul_sat(wp.vec3(1.0, 1.0, 1.0), le)
                             else:
                                 v = -d
-                                local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
+                                ka = scene.mats[h.mat].ka
+                                kd = scene.mats[h.mat].kd
+                                ks = scene.mats[h.mat].ks
+                                if wp.static(F.textures):
+                                    tm = textured(scene, h, lane(pk.time, k))
+                                    ka = tm.ka
+                                    kd = tm.kd
+                                    ks = tm.ks
+                                local = mul_sat(ka, scene.ambient)
                                 origin = spawn_origin(h.p, ng, h.mag, 1.0)
                                 L = local  # the local light so far (the lights are added below)
                                 lit = lit | (1 << k)
@@ -483,8 +493,6 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 sp_.vx[k] = v[0]
                                 sp_.vy[k] = v[1]
                                 sp_.vz[k] = v[2]
-                                kd = scene.mats[h.mat].kd
-                                ks = scene.mats[h.mat].ks
                                 sp_.kdr[k] = kd[0]
                                 sp_.kdg[k] = kd[1]
                                 sp_.kdb[k] = kd[2]
@@ -625,9 +633,19 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                                 L += mul_sat(e.w, le)
                             continue
                         v = -e.d
-                        local = mul_sat(scene.mats[h.mat].ka, scene.ambient)
+                        ka = scene.mats[h.mat].ka
+                        kd = scene.mats[h.mat].kd
+                        ks = scene.mats[h.mat].ks
+                        km = scene.mats[h.mat].km
+                        if wp.static(F.textures):
+                            tm = textured(scene, h, time)
+                            ka = tm.ka
+                            kd = tm.kd
+                            ks = tm.ks
+                            km = tm.km
+                        local = mul_sat(ka, scene.ambient)
                         origin = spawn_origin(h.p, ng, h.mag, 1.0)  # shadow rays leave from here
-                        dl = point_lights_direct(scene, h.p, origin, h.mat, ng, n, v, time)
+                        dl = point_lights_direct(scene, h.p, origin, kd, ks, scene.mats[h.mat].p, ng, n, v, time)
                         rays += int(dl[3])
                         local += wp.vec3(dl[0], dl[1], dl[2])
                         if wp.static(F.area_lights):
@@ -635,7 +653,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                             # small enough for the C++ compiler to inline
                             if scene.n_alights > 0:
                                 al = area_lights_direct(scene, params, pkey, s, e.key, h.p, origin, ng, n, v,
-                                                        scene.mats[h.mat].kd, scene.mats[h.mat].ks, scene.mats[h.mat].p, time,
+                                                        kd, ks, scene.mats[h.mat].p, time,
                                                         map_samples(scene, px0 + (cur >> sh), py + (cur & rm)))
                                 rays += int(al[3])
                                 local += wp.vec3(al[0], al[1], al[2])
@@ -643,7 +661,7 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
 
                         if wp.static(F.secondary):
                             if e.depth < params.max_depth:
-                                w_refl = scene.mats[h.mat].km
+                                w_refl = km
                                 if wp.static(F.refraction):
                                     kt = scene.mats[h.mat].kt
                                     if wp.max(kt) > 0.0:

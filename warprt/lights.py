@@ -656,12 +656,10 @@ def make_lights(F: Features) -> SimpleNamespace:
         return out
 
     @wp.func(inline=True)
-    def point_lights_direct(scene: SceneData, p: wp.vec3, origin: wp.vec3, mat: int, ng: wp.vec3, n: wp.vec3,
-                            v: wp.vec3, time: float) -> wp.vec4:
-        """Light reaching the viewer from the point lights (rgb, shadow rays used in w)."""
-        kd = scene.mats[mat].kd
-        ks = scene.mats[mat].ks
-        p_exp = scene.mats[mat].p
+    def point_lights_direct(scene: SceneData, p: wp.vec3, origin: wp.vec3, kd: wp.vec3, ks: wp.vec3, p_exp: float,
+                            ng: wp.vec3, n: wp.vec3, v: wp.vec3, time: float) -> wp.vec4:
+        """Light reaching the viewer from the point lights (rgb, shadow rays used in w) at a
+        point of diffuse kd and specular ks, p_exp."""
         L = wp.vec3(0.0, 0.0, 0.0)
         rays = int(0)
         for i in range(scene.n_plights):

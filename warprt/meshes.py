@@ -9,48 +9,13 @@ it, so re-posing or re-lighting a scene never rebuilds a BVH.
 from __future__ import annotations
 
 import hashlib
-import os
-import threading
 import warnings
-from collections import OrderedDict
 
 import numpy as np
 import warp as wp
 
 from .errors import RenderError, SceneError
 from .scene.description import Mesh, validate_arrays
-
-CACHE_ENTRIES = 16  # parsed mesh files kept (least recently used goes first)
-
-_file_cache: "OrderedDict[tuple, tuple[np.ndarray, np.ndarray]]" = OrderedDict()
-_file_lock = threading.Lock()
-
-
-def read_mesh_file(path: str) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        st = os.stat(path)
-    except OSError:
-        raise SceneError(f"mesh file not found: {path!r}", "file") from None
-    key = (path, st.st_mtime_ns, st.st_size)
-    with _file_lock:
-        if key in _file_cache:
-            _file_cache.move_to_end(key)
-            return _file_cache[key]
-    import trimesh
-
-    try:
-        loaded = trimesh.load(path, force="mesh", process=False)
-    except Exception as e:  # trimesh raises many types for unreadable files
-        raise SceneError(f"cannot read mesh file {os.path.basename(path)!r}: {e}", "file") from None
-    v = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    f = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
-    if len(v) == 0 or len(f) == 0:
-        raise SceneError(f"mesh file {os.path.basename(path)!r} holds no triangles", "file")
-    with _file_lock:
-        _file_cache[key] = (v, f)
-        while len(_file_cache) > CACHE_ENTRIES:
-            _file_cache.popitem(last=False)
-    return v, f
 
 
 def prepare_mesh(v: np.ndarray, f: np.ndarray, degenerate: str = "error") -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +59,7 @@ def asset_key(m: Mesh) -> tuple:
     if m.file is not None:
         return ("file", m.file, m.degenerate)
     h = hashlib.blake2b(digest_size=16)
-    for a in (m.vertices, m.faces):
+    for a in (m.vertices, m.faces) + (() if m.uv is None else (m.uv,)):
         h.update(str(a.shape).encode())
         h.update(np.ascontiguousarray(a).tobytes())
     return ("arrays", h.hexdigest(), m.degenerate)

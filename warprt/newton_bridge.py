@@ -21,8 +21,11 @@ meshes and convex hulls keep their triangles (times their scale). A plane's scal
 width and length (0: infinite), as in Newton's ray cast. Height fields, SDFs, Gaussians,
 particles, barrel cylinders and planes finite along one axis only are refused with the shape's
 index; invisible shapes (no ``VISIBLE`` flag, e.g. collision-only ones) are skipped as Newton's
-camera skips them; opacity and textures are not read (every shape is an opaque Lambert surface
-of its colour).
+camera skips them; opacity and Newton's textures are not read (every shape is an opaque Lambert
+surface of its colour). For domain randomisation, each world's colours and textures of the shapes
+and intensities of the lights change between frames (``set_shape_colors``,
+``set_shape_textures`` with the ``textures`` given to the constructor or added with
+``add_texture``, ``set_light_intensities``): runtime data, no rebuild, no recompile.
 Up axis: a Newton model is z-up unless built with ``ModelBuilder(up_axis="Y")`` (or "X");
 ``model.up_axis`` says which (:attr:`NewtonRenderer.up_axis`). Shapes are placed by their own
 transforms whatever the axis; what depends on it follows the model as Newton's camera does: the
@@ -236,7 +239,8 @@ class NewtonRenderer:
 
     def __init__(self, model, cameras: int = 1, camera: Camera | None = None, lights=None, ambient=0.0,
                  background=(0.0, 0.0, 0.0), render: RenderSettings | None = None, motion_blur: bool = False,
-                 device: str | None = None, check_inputs: bool = True, depth_sensor: DepthSensor | None = None):
+                 device: str | None = None, check_inputs: bool = True, depth_sensor: DepthSensor | None = None,
+                 textures=()):
         check_model(model)
         self.model = model
         self.scene, self.shape_map = scene_from_model(model, camera, lights, ambient, background, render,
@@ -245,7 +249,8 @@ class NewtonRenderer:
         self.up_axis = model_up_axis(model)
         self.batch = BatchRenderer(self.scene, worlds=self.shape_map.newton_shape.shape[0], cameras=cameras,
                                    device=device if device is not None else str(model.device),
-                                   motion_blur=motion_blur, check_inputs=check_inputs, up_axis=self.up_axis)
+                                   motion_blur=motion_blur, check_inputs=check_inputs, up_axis=self.up_axis,
+                                   textures=textures)
         dev = self.batch.device
         self._map = wp.array(self.shape_map.newton_shape, dtype=wp.int32, device=dev)
         self._updates = 0
@@ -295,6 +300,52 @@ class NewtonRenderer:
         if b.motion_blur and not self._updates:
             wp.copy(b.shape_poses, target)
         self._updates += 1
+
+    # per-world looks (domain randomisation): shape j of scene.shapes has material "shape{j}", so
+    # the batch's material columns 0..S-1 are the shapes' (S is the last, warprt's default)
+    def _per_shape(self, values, current: "wp.array") -> np.ndarray:
+        S = len(self.scene.shapes)
+        full = current.numpy().copy()
+        a = np.asarray(values)
+        full[:, :S] = np.broadcast_to(a, full[:, :S].shape) if a.shape != full[:, :S].shape else a
+        return full
+
+    def set_shape_colors(self, colors) -> None:
+        """Each world's linear RGB colour of each rendered shape, (W, S, 3) (S = len(scene.shapes);
+        broadcast: (S, 3) for every world alike). sRGB colours: ``warprt.srgb_to_linear`` first."""
+        b = self.batch
+        try:
+            full = self._per_shape(np.asarray(colors, np.float64), b.material_colors)
+        except ValueError:
+            raise RenderError(f"shape colors: expected ({b.worlds}, {len(self.scene.shapes)}, 3) values, got "
+                              f"{np.shape(colors)}") from None
+        b.set_material_colors(full)
+
+    def set_shape_textures(self, indices) -> None:
+        """Each world's texture of each rendered shape, (W, S) indices into ``textures`` (-1: none).
+        Newton's shapes other than meshes with UVs have no texture coordinates: give their
+        textures ``projection="triplanar"`` or ``"cubic"``."""
+        b = self.batch
+        try:
+            full = self._per_shape(np.asarray(indices), b.material_textures)
+        except ValueError:
+            raise RenderError(f"shape textures: expected ({b.worlds}, {len(self.scene.shapes)}) indices, got "
+                              f"{np.shape(indices)}") from None
+        b.set_material_textures(full)
+
+    @property
+    def textures(self) -> list:
+        """The textures ``set_shape_textures`` indexes (see :attr:`warprt.BatchRenderer.textures`)."""
+        return self.batch.textures
+
+    def add_texture(self, texture) -> int:
+        """Add a texture and return its index (see :meth:`warprt.BatchRenderer.add_texture`)."""
+        return self.batch.add_texture(texture)
+
+    def set_light_intensities(self, intensities) -> None:
+        """(W, L, 3) intensities of the point and directional lights (see
+        :meth:`warprt.BatchRenderer.set_light_intensities`)."""
+        self.batch.set_light_intensities(intensities)
 
     def set_camera_poses(self, poses, end=None) -> None:
         """(W, C) camera-to-world poses (see :meth:`warprt.BatchRenderer.set_camera_poses`)."""

@@ -20,6 +20,7 @@ KIND_NONE, KIND_SPHERE, KIND_PLANE, KIND_RECT, KIND_DISK, KIND_MESH = -1, 0, 1, 
 KIND_BOX, KIND_CAPSULE, KIND_CYLINDER = 5, 6, 7  # the posed solids (``SolidRec``)
 FALLOFF_DIRECTIONAL = 2  # PointLightRec.inv_sq of a directional light (0: none, 1: inverse square)
 FRESNEL_IDS = {"none": 0, "schlick": 1, "exact": 2}
+TEX_BITMAP, TEX_CHECKER = 0, 1  # TexRec.kind
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,7 @@ class Features:
     motion: bool = False  # moving objects or camera (motion blur)
     solids: bool = False  # analytic boxes, capsules and cylinders (intersected in their own frame)
     analytic_bvh: bool = False  # a BVH over the bounded analytic shapes: camera rays through it in packets
+    textures: bool = False  # textured materials (bitmaps, checkers; uv, triplanar or cubic projection)
 
     @classmethod
     def full(cls) -> "Features":
@@ -81,6 +83,7 @@ def features_of(scene: Scene) -> Features:
         motion=scene.camera.moves or any(_moves(s) for s in scene.shapes),
         solids=any(isinstance(s, SOLID_TYPES) for s in scene.shapes),
         analytic_bvh=_bounded_analytic(scene) >= ANALYTIC_BVH_MIN,
+        textures=any(getattr(m, name) is not None for m in used for name in Material.TEXTURE_FIELDS),
     )
 
 
@@ -172,6 +175,7 @@ class InstRec:
     mat: int
     smooth: int
     nrm_off: int  # first vertex normal of the asset in SceneData.normals
+    uv_off: int  # first vertex's texture coordinates in SceneData.uvs (-1: the asset has none)
     olo: wp.vec3  # the asset's bounding box in object space
     ohi: wp.vec3
     lo: wp.vec3  # the instance's box in world space over the shutter (rays that miss it skip the mesh)
@@ -205,6 +209,26 @@ class MatRec:
     gloss: float
     frost: float
     emit: wp.vec3  # emitted radiance (area lights' own shapes)
+    tex: int  # texture (row of SceneData.texs) multiplying kd and ka; -1: none
+    tex_s: int  # texture multiplying ks; -1: none
+    tex_m: int  # texture multiplying km; -1: none
+
+
+@wp.struct
+class TexRec:
+    """A texture (``warprt.scene.texture``): a bitmap's texels are rows of SceneData.texels from
+    ``off`` on (w × h, row 0 the image's top), a checker's colours c0 and c1."""
+
+    kind: int  # TEX_BITMAP or TEX_CHECKER
+    off: int
+    w: int
+    h: int
+    wrap: int  # WRAPS id: 0 repeat, 1 clamp
+    proj: int  # PROJECTIONS id: 0 uv, 1 triplanar, 2 cubic
+    scale: float
+    sharp: float  # triplanar blend exponent
+    c0: wp.vec3
+    c1: wp.vec3
 
 
 @wp.struct
@@ -253,6 +277,9 @@ class SceneData:
     cylinders: wp.array(dtype=SolidRec)
     normals: wp.array(dtype=wp.vec3)
     mats: wp.array(dtype=MatRec)
+    texs: wp.array(dtype=TexRec)  # the textures the materials name
+    texels: wp.array(dtype=wp.vec3)  # every bitmap's linear RGB texels
+    uvs: wp.array(dtype=wp.vec2)  # the mesh assets' per-vertex texture coordinates (InstRec.uv_off)
     n_plights: int
     plights: wp.array(dtype=PointLightRec)
     lb_cells: wp.array(dtype=int)  # the point lights' buffers: each cell's first entry in lb_items, then the end

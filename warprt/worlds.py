@@ -14,6 +14,11 @@ builds the scene once and keeps, on the device:
 * ``light_positions`` (W, L) ``vec3``: the position of each point light and the direction of
   travel of each directional light (L = those lights, in ``scene.lights`` order). Area lights
   are the same in every world.
+* ``material_colors`` (W, M) ``vec3``, ``material_textures`` (W, M) int32 and
+  ``light_intensities`` (W, L) ``vec3``: each world's looks (domain randomisation): the diffuse
+  colour kd of each of the scene's M materials (ka keeps its ratio to kd), its texture (an index
+  into ``textures``, -1 none; the kernel has texture code where the scene has a texture or
+  ``textures=[...]`` is given) and each point or directional light's intensity.
 * ``camera_poses`` (W, C) ``wp.transform``: camera to world; the camera looks along its local
   -z with +y up (the OpenGL convention). ``camera_poses_end``: at shutter close (the up vector
   is the shutter-open one). ``fov`` (C,) float32: each camera's vertical field of view in
@@ -46,7 +51,7 @@ from . import _warp, kernels
 from ._warp import build_once
 from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
-from .checks import EXTENT_LIMIT, check_batch, describe_transform
+from .checks import EXTENT_LIMIT, NONE, check_batch, describe_transform
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
 from .aov import AOVS, AovData, AovTarget, no_aovs
@@ -55,13 +60,15 @@ from .memory import check_memory
 from .results import Displayed, FrameResult, camera_record_matrices, png_bytes, scene_metadata
 from .records import (
     FALLOFF_DIRECTIONAL, KIND_BOX, KIND_CAPSULE, KIND_CYLINDER, KIND_DISK, KIND_MESH, KIND_PLANE, KIND_RECT, KIND_SPHERE,
-    GENERAL_FEATURES, CameraData, DiskRec, Features, InstRec, PlaneRec, PointLightRec, RectRec, RenderParams,
+    GENERAL_FEATURES, CameraData, DiskRec, Features, InstRec, MatRec, PlaneRec, PointLightRec, RectRec, RenderParams,
     SceneData, SolidRec, SphereRec,
 )
 from .render import (
     SLICE_BLOCK, SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass,
 )
+from .errors import SceneError
 from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
+from .scene.texture import Texture, as_texture
 from .geometry import disk_extent
 from .poses import up_vector, warn_rolled
 from .sensor import apply_depth_sensor, split_aovs
@@ -84,6 +91,7 @@ class WorldTables:
     capsules: wp.array2d(dtype=SolidRec)
     cylinders: wp.array2d(dtype=SolidRec)
     plights: wp.array2d(dtype=PointLightRec)
+    mats: wp.array2d(dtype=MatRec)
     bvh_nodes_per_world: int  # world w's BVH is the nodes from w · this on (accel: a forest of equal trees)
 
 
@@ -100,6 +108,7 @@ def world_scene(scene: SceneData, tables: WorldTables, w: int) -> SceneData:
     sc.capsules = tables.capsules[w]
     sc.cylinders = tables.cylinders[w]
     sc.plights = tables.plights[w]
+    sc.mats = tables.mats[w]
     if scene.bvh_root >= 0:
         sc.bvh_root = w * tables.bvh_nodes_per_world
     return sc
@@ -175,9 +184,11 @@ def _pose_kernels():
                 tables.cylinders[w, row] = rec
 
     @wp.kernel(module="warprt_worlds", enable_backward=False)
-    def pose_lights(base: SceneData, positions: wp.array2d(dtype=wp.vec3), tables: WorldTables):
+    def pose_lights(base: SceneData, positions: wp.array2d(dtype=wp.vec3), intensities: wp.array2d(dtype=wp.vec3),
+                    tables: WorldTables):
         w, i = wp.tid()
         rec = base.plights[i]
+        rec.intensity = intensities[w, i]
         x = positions[w, i]
         if rec.inv_sq == FALLOFF_DIRECTIONAL:
             rec.pos = -wp.normalize(x)  # the unit vector towards the light
@@ -246,7 +257,44 @@ def _pose_kernels():
         lowers[j] = lo - pad
         uppers[j] = hi + pad
 
-    return pose_shapes, pose_lights, pose_cameras, world_bounds
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def pose_materials(base: SceneData, colors: wp.array2d(dtype=wp.vec3), textures: wp.array2d(dtype=int),
+                       n_textures: int, tables: WorldTables):
+        # the scene's materials take each world's colour (kd; ka keeps its ratio to kd) and
+        # texture; the rows past them (area lights' emitters) stay the scene's
+        w, m = wp.tid()
+        rec = base.mats[m]
+        if m < colors.shape[1]:
+            c = colors[w, m]
+            for k in range(3):
+                if rec.kd[k] > 0.0:
+                    rec.ka[k] = rec.ka[k] * (c[k] / rec.kd[k])
+                rec.kd[k] = c[k]
+            t = textures[w, m]
+            if t < -1 or t >= n_textures:
+                t = -1  # (refused before the render where check_inputs is on)
+            rec.tex = t
+        tables.mats[w, m] = rec
+
+    @wp.kernel(module="warprt_worlds", enable_backward=False)
+    def check_looks(colors: wp.array2d(dtype=wp.vec3), textures: wp.array2d(dtype=int), n_textures: int,
+                    intensities: wp.array2d(dtype=wp.vec3), first: wp.array(dtype=int)):
+        # the first bad element of each: a colour or intensity that is not finite and >= 0, a
+        # texture index outside [-1, n_textures)
+        w, j = wp.tid()
+        if j < colors.shape[1]:
+            c = colors[w, j]
+            if not (wp.isfinite(c) and wp.min(c) >= 0.0):
+                wp.atomic_min(first, 0, w * colors.shape[1] + j)
+            t = textures[w, j]
+            if t < -1 or t >= n_textures:
+                wp.atomic_min(first, 1, w * colors.shape[1] + j)
+        if j < intensities.shape[1]:
+            c = intensities[w, j]
+            if not (wp.isfinite(c) and wp.min(c) >= 0.0):
+                wp.atomic_min(first, 2, w * intensities.shape[1] + j)
+
+    return pose_shapes, pose_lights, pose_cameras, world_bounds, pose_materials, check_looks
 
 
 @build_once
@@ -417,7 +465,7 @@ class BatchRenderer:
 
     def __init__(self, scene: Scene, worlds: int = 1, cameras: int = 1, device: str | None = None,
                  motion_blur: bool = False, features: Features | None = None, check_inputs: bool = True,
-                 background_compile: bool | None = None, up_axis=None):
+                 background_compile: bool | None = None, up_axis=None, textures=()):
         if not isinstance(scene, Scene):
             raise RenderError(f"BatchRenderer needs a warprt.Scene, got {type(scene).__name__}")
         if features is not None and not isinstance(features, Features):
@@ -453,12 +501,16 @@ class BatchRenderer:
             F = F.union(Features(motion=True))
         if features is not None:
             F = F.union(features)
+        if isinstance(textures, (str, Texture)) or not isinstance(textures, (list, tuple)):
+            raise RenderError(f"textures must be a list of warprt.Texture (or image paths), got {textures!r:.60}")
+        if textures:
+            F = F.union(Features(textures=True))
         self.features = F
         d = self.built.data
 
         # per-world tables: world w starts as the scene itself
         self.tables = WorldTables()
-        for name in ("spheres", "planes", "rects", "disks", "insts", "boxes", "capsules", "cylinders", "plights"):
+        for name in ("spheres", "planes", "rects", "disks", "insts", "boxes", "capsules", "cylinders", "plights", "mats"):
             base = getattr(d, name)
             host = base.numpy()
             if name == "insts":
@@ -478,6 +530,28 @@ class BatchRenderer:
         pos = np.array([light.direction if isinstance(light, DirectionalLight) else light.position
                         for light in lights] or [(0.0, 0.0, 0.0)], np.float32)
         self.light_positions = wp.array(np.repeat(pos[None], W, axis=0), dtype=wp.vec3, device=dev)
+        inten = np.array([light.intensity for light in lights] or [(0.0, 0.0, 0.0)], np.float32)
+        #: (W, L) vec3: each world's intensity of each point and directional light
+        self.light_intensities = wp.array(np.repeat(inten[None], W, axis=0), dtype=wp.vec3, device=dev)
+        # the looks: each world's colour and texture of each of the scene's materials
+        self.material_names = list(scene.materials)
+        M = len(self.material_names)
+        rows = self.built.material_rows[:M]
+        #: (W, M) vec3: each world's diffuse colour kd of each material (``material_names`` order)
+        self.material_colors = wp.array(np.repeat(np.array([r["kd"] for r in rows], np.float32)[None], W, axis=0),
+                                        dtype=wp.vec3, device=dev)
+        #: (W, M) int32: each world's texture of each material (an index into ``textures``; -1: none)
+        self.material_textures = wp.array(np.repeat(np.array([r["tex"] for r in rows], np.int32)[None], W, axis=0),
+                                          dtype=int, device=dev)
+        self.counters["host_transfers"] += 3
+        for i, t in enumerate(textures):
+            try:
+                self.built.textures.add(as_texture(t, f"textures[{i}]"))
+            except SceneError as e:
+                raise RenderError(str(e)) from None
+        if textures:
+            d.texs, d.texels = self.built.textures.upload(dev)
+            self.counters["host_transfers"] += 2
         self._n_shapes, self._n_lights = S, len(lights)
         self._directional_lights = [int(isinstance(light, DirectionalLight)) for light in lights]
         self._light_index = [i for i, light in enumerate(scene.lights) if isinstance(light, (PointLight, DirectionalLight))]
@@ -623,6 +697,123 @@ class BatchRenderer:
         wp.copy(self.camera_poses, start)
         wp.copy(self.camera_poses_end, close)
 
+    # --- looks: colours, textures, light intensities -------------------------------------------
+
+    @property
+    def textures(self) -> list:
+        """The textures ``material_textures`` indexes: the scene's own, then those given to the
+        constructor or to :meth:`add_texture`, in that order."""
+        return list(self.built.textures.textures)
+
+    def material_index(self, material) -> int:
+        """The column of ``material`` (a name in ``scene.materials``, or an index) in
+        ``material_colors`` and ``material_textures``."""
+        if isinstance(material, str):
+            if material not in self.material_names:
+                raise RenderError(f"unknown material {material!r} (known: {', '.join(self.material_names)})")
+            return self.material_names.index(material)
+        if isinstance(material, bool) or not isinstance(material, (int, np.integer)) \
+                or not 0 <= material < len(self.material_names):
+            raise RenderError(f"material must be a name or an index below {len(self.material_names)}, "
+                              f"got {material!r:.60}")
+        return int(material)
+
+    def add_texture(self, texture) -> int:
+        """Add a texture (a :class:`warprt.Texture`, an image path or a table of its fields) to
+        those ``material_textures`` may name and return its index. Its texels are copied to the
+        device (the pool grows: no rebuild, no recompile); the kernel must have the textures
+        feature: a scene with a texture, ``textures=[...]`` given to the constructor, or
+        ``features=Features(textures=True)``."""
+        if not self.features.textures:
+            raise RenderError("this batch's kernel has no texture code: give the constructor textures=[...] "
+                              "(or features=warprt.Features(textures=True)) to switch textures between frames")
+        try:
+            tex = as_texture(texture, "texture")
+        except SceneError as e:
+            raise RenderError(str(e)) from None
+        if tex is None:
+            raise RenderError("add_texture needs a texture, got None")
+        index = self.built.textures.add(tex)
+        d = self.built.data
+        d.texs, d.texels = self.built.textures.upload(self.device)
+        self.scene_data.texs, self.scene_data.texels = d.texs, d.texels
+        self.counters["host_transfers"] += 2
+        return index
+
+    def _looks_array(self, values, shape: tuple, name: str, dtype) -> "wp.array":
+        """``values`` (numpy, or a wp.array of ``dtype`` shaped ``shape`` on this device) as a wp.array."""
+        if isinstance(values, wp.array):
+            if values.device != self.device or values.dtype != dtype or tuple(values.shape) != shape:
+                raise RenderError(f"{name}: expected a wp.array of {dtype.__name__} shaped {shape} on {self.device}, "
+                                  f"got {getattr(values.dtype, '__name__', values.dtype)} {tuple(values.shape)} on "
+                                  f"{values.device}")
+            return values
+        try:
+            a = np.asarray(values, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise RenderError(f"{name}: expected numbers, got {type(values).__name__}") from None
+        full = shape + ((3,) if dtype == wp.vec3 else ())
+        if a.shape != full:
+            try:
+                a = np.broadcast_to(a, full)
+            except ValueError:
+                raise RenderError(f"{name}: expected values shaped {full} (or broadcastable to it), got {a.shape}") from None
+        if dtype == wp.vec3:
+            bad = ~np.isfinite(a).all(axis=-1) | (np.nan_to_num(a, nan=-1.0) < 0).any(axis=-1)
+        else:
+            bad = (a != np.round(a)) | (a < -1) | (a >= len(self.built.textures))
+        if bad.any():
+            index = ", ".join(map(str, np.argwhere(bad)[0]))
+            what = ("a colour must be finite and >= 0" if dtype == wp.vec3 else
+                    f"a texture index must be -1 (none) or below {len(self.built.textures)} (the textures)")
+            raise RenderError(f"{name}[{index}]: {what}, got {a[tuple(np.argwhere(bad)[0])].tolist()}")
+        self.counters["host_transfers"] += 1
+        return wp.array(np.ascontiguousarray(a, dtype=np.float32 if dtype == wp.vec3 else np.int32), dtype=dtype,
+                        device=self.device)
+
+    def set_material_colors(self, colors) -> None:
+        """Each world's diffuse colour kd of each material, (W, M, 3) linear RGB (or anything that
+        broadcasts to it: (M, 3) for every world alike); ``ka`` keeps its ratio to kd per channel."""
+        shape = (self.worlds, len(self.material_names))
+        wp.copy(self.material_colors, self._looks_array(colors, shape, "material_colors", wp.vec3))
+
+    def set_material_textures(self, indices) -> None:
+        """Each world's texture of each material, (W, M) indices into :attr:`textures` (-1: none;
+        broadcast like the colours). It multiplies kd and ka as the material's ``texture`` does."""
+        if not self.features.textures:
+            raise RenderError("this batch's kernel has no texture code: give the constructor textures=[...] "
+                              "(or features=warprt.Features(textures=True))")
+        shape = (self.worlds, len(self.material_names))
+        wp.copy(self.material_textures, self._looks_array(indices, shape, "material_textures", int))
+
+    def set_light_intensities(self, intensities) -> None:
+        """Each world's intensity of each point and directional light, (W, L, 3) (broadcast like
+        the colours; L as ``light_positions``)."""
+        wp.copy(self.light_intensities,
+                self._looks_array(intensities, (self.worlds, max(self._n_lights, 1)), "light_intensities", wp.vec3))
+
+    def _check_looks(self, first: "wp.array") -> None:
+        """Launch the check of the looks' arrays on the device: the first bad element of each
+        into ``first`` (three ints, NONE where none; read with the poses' check, warprt.checks)."""
+        W, M, L = self.worlds, len(self.material_names), max(self._n_lights, 1)
+        wp.launch(_pose_kernels()[5], dim=(W, max(M, L)), device=self.device,
+                  inputs=[self.material_colors, self.material_textures, len(self.built.textures),
+                          self.light_intensities, first])
+
+    def _looks_problems(self, found) -> list:
+        """What ``_check_looks`` found, as messages naming each array's first bad element."""
+        problems = []
+        for slot, (name, n) in enumerate((("material_colors", len(self.material_names)),
+                                          ("material_textures", len(self.material_names)),
+                                          ("light_intensities", max(self._n_lights, 1)))):
+            if found[slot] != NONE:
+                w, j = divmod(int(found[slot]), n)
+                value = getattr(self, name)[w:w + 1].numpy()[0][j]
+                what = (f"a texture index must be -1 (none) or below {len(self.built.textures)}"
+                        if slot == 1 else "must be finite and >= 0")
+                problems.append(f"{name}[{w}, {j}]: {what}, got {np.asarray(value).tolist()}")
+        return problems
+
     def _check_arrays(self) -> None:
         """The pose arrays are attributes a pipeline may replace: each must still be a wp.array
         of its dtype and shape on this device (else a RenderError naming it, not Warp's)."""
@@ -630,7 +821,10 @@ class BatchRenderer:
         for name, dtype, shape in (("shape_poses", wp.transform, (W, max(self._n_shapes, 1))),
                                    ("shape_poses_end", wp.transform, (W, max(self._n_shapes, 1))),
                                    ("camera_poses", wp.transform, (W, C)), ("camera_poses_end", wp.transform, (W, C)),
-                                   ("light_positions", wp.vec3, (W, max(self._n_lights, 1))), ("fov", float, (C,))):
+                                   ("light_positions", wp.vec3, (W, max(self._n_lights, 1))), ("fov", float, (C,)),
+                                   ("light_intensities", wp.vec3, (W, max(self._n_lights, 1))),
+                                   ("material_colors", wp.vec3, (W, len(self.material_names))),
+                                   ("material_textures", wp.int32, (W, len(self.material_names)))):
             a = getattr(self, name)
             if not isinstance(a, wp.array) or a.dtype != (wp.float32 if dtype is float else dtype) \
                     or tuple(a.shape) != shape or a.device != self.device or not a.is_contiguous:
@@ -641,7 +835,7 @@ class BatchRenderer:
                                   "e.g. with wp.copy)")
 
     def _update_tables(self) -> None:
-        pose_shapes, pose_lights, pose_cameras, world_bounds = _pose_kernels()
+        pose_shapes, pose_lights, pose_cameras, world_bounds, pose_materials, _ = _pose_kernels()
         dev, d = self.device, self.built.data
         end = self.shape_poses_end if self.motion_blur else self.shape_poses
         if self._n_shapes:
@@ -649,7 +843,9 @@ class BatchRenderer:
                       inputs=[d, self._shape_map, self.shape_poses, end, self.tables])
         if self._n_lights:
             wp.launch(pose_lights, dim=(self.worlds, self._n_lights), device=dev,
-                      inputs=[d, self.light_positions, self.tables])
+                      inputs=[d, self.light_positions, self.light_intensities, self.tables])
+        wp.launch(pose_materials, dim=(self.worlds, d.mats.shape[0]), device=dev,
+                  inputs=[d, self.material_colors, self.material_textures, len(self.built.textures), self.tables])
         cam_end = self.camera_poses_end if self.motion_blur or self.scene.camera.moves else self.camera_poses
         wp.launch(pose_cameras, dim=(self.worlds, self.cameras), device=dev,
                   inputs=[self.built.camera, self.camera_poses, cam_end, self.fov, self._cams])

@@ -9,25 +9,37 @@ face arrays, so the builder makes one ``wp.Mesh`` (one BVH) for them and instanc
 glTF PBR metallic-roughness → warprt's Phong/mirror/glossy material (base colour b, metallic m,
 roughness r; glTF colours are linear, as warprt's are):
 
-* b = ``baseColorFactor`` (RGB) × the mean of the base-colour texture, if there is one (its
-  texels decoded from sRGB to linear first); alpha is ignored;
-* ``kd`` = b·(1 − m) (and ``ka`` = kd): the dielectric part is Lambertian;
-* ``mirror`` = b·m: the metallic part reflects, tinted by the base colour;
+* b = ``baseColorFactor`` (RGB; alpha is ignored), B(uv) the base-colour texture (its texels
+  decoded from sRGB to linear once, at load; 1 where there is none), M(uv) the metallic map (the
+  blue channel of ``metallicRoughnessTexture``, linear data; 1 where there is none), m =
+  ``metallicFactor``;
+* ``kd`` = b·(1 − m) (and ``ka`` = kd), times ``texture`` = B: the dielectric part is Lambertian;
+* ``mirror`` = b·m, times ``mirror_texture`` = B: the metallic part reflects, tinted by the base
+  colour (the same texture as kd's: one texture in the renderer's pool);
+* with a metallic map the split varies over the surface: ``kd`` = b and ``mirror`` = b with the
+  textures B·(1 − m·M) and B·m·M, baked at load at the base texture's resolution (the metallic
+  map resampled bilinearly to it where the two differ);
+* the mesh's UVs come from the file through trimesh (TEXCOORD_0, flipped by trimesh from glTF's
+  top-left origin to OBJ's bottom-left one, warprt's convention);
 * ``glossy_exponent``: with α = r², Walter et al.'s Blinn-Phong exponent 2/α² − 2 is a lobe about
   the half vector; about the mirror direction (angles twice as large) it is n = (2/α² − 2)/4,
   clamped to n ≥ 1; r = 0 or n ≥ 1e5 (a lobe narrower than 0.3°) is a perfect mirror (0);
 * ``ks`` = 0: the dielectric's 4 % Fresnel highlight is not mapped, and a metal's highlight comes
   from its reflection (area lights are seen in reflections, point lights are not);
+* an OBJ/MTL material (trimesh's ``SimpleMaterial``): ``Kd`` and ``map_Kd`` are the base colour,
+  metallic 0;
 * ``emissiveFactor`` ≠ 0: warprt has no emissive surfaces (an area light is a light, not a
   material), so it is ignored with a warning; add an area light where the glTF glows;
-* vertex colours, texture detail beyond the mean, normal/occlusion maps, alpha and transmission
-  are not read.
+* vertex colours, the roughness map (the factor is used), normal/occlusion maps, alpha and
+  transmission are not read; a texture on a mesh without UVs is dropped with a warning (its mean
+  colour multiplies the factor instead).
 """
 
 from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -35,6 +47,7 @@ import numpy as np
 from ..colour import srgb_to_linear
 from ..errors import SceneError
 from .description import DEFAULT_MATERIAL, Material, Mesh
+from .texture import Texture
 from .transform import Transform, as_transform
 
 GLOSSY_LIMIT = 1e5  # Phong exponents at least this large are a perfect mirror (glossy_exponent 0)
@@ -52,25 +65,28 @@ def pbr_material(base, metallic: float, roughness: float) -> Material:
     return Material(kd=tuple(b * (1.0 - m)), ks=0.0, mirror=tuple(b * m), glossy_exponent=n)
 
 
+def _texels(image: Any, srgb: bool) -> np.ndarray:
+    """A PIL image's RGB texels as linear float values (H, W, 3), row 0 the top."""
+    a = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+    return srgb_to_linear(a) if srgb else a
+
+
 def base_colour(mat: Any) -> np.ndarray:
-    """glTF base colour (linear RGB): factor × the mean of the texture's linear texels."""
+    """glTF base colour factor (linear RGB)."""
     factor = getattr(mat, "baseColorFactor", None)
     b = np.ones(3) if factor is None else np.asarray(factor, dtype=np.float64)[:3]
     if factor is not None and np.asarray(factor).dtype.kind in "ui":  # trimesh keeps it as uint8
         b = b / 255.0
-    tex = getattr(mat, "baseColorTexture", None)
-    if tex is not None:
-        texels = np.asarray(tex.convert("RGB"), dtype=np.float64).reshape(-1, 3) / 255.0
-        b = b * srgb_to_linear(texels).mean(axis=0)
     return b
 
 
-def _material_of(geom: Any, where: str) -> Material | None:
+def _material_of(geom: Any, where: str, has_uv: bool) -> Material | None:
     mat = getattr(getattr(geom, "visual", None), "material", None)
     if mat is None:
         return None
-    if not hasattr(mat, "metallicFactor") and hasattr(mat, "to_pbr"):
-        mat = mat.to_pbr()  # an OBJ/MTL SimpleMaterial: its diffuse colour as the base colour
+    simple = not hasattr(mat, "metallicFactor") and hasattr(mat, "to_pbr")
+    if simple:
+        mat = mat.to_pbr()  # an OBJ/MTL SimpleMaterial: its Kd (and map_Kd) as the base colour
     emissive = getattr(mat, "emissiveFactor", None)
     if emissive is not None and np.any(np.asarray(emissive, dtype=np.float64) > 0):
         warnings.warn(f"{where}: material {getattr(mat, 'name', None)!r} is emissive; warprt surfaces do not "
@@ -78,8 +94,34 @@ def _material_of(geom: Any, where: str) -> Material | None:
     metallic = getattr(mat, "metallicFactor", None)
     roughness = getattr(mat, "roughnessFactor", None)
     # glTF's defaults when a factor is absent: metallic 1, roughness 1
-    return pbr_material(base_colour(mat), 1.0 if metallic is None else metallic,
-                        1.0 if roughness is None else roughness)
+    # (an OBJ/MTL material is a dielectric: not metallic)
+    m = (0.0 if simple else 1.0) if metallic is None else min(max(float(metallic), 0.0), 1.0)
+    r = 1.0 if roughness is None else roughness
+    b = base_colour(mat)
+    base_tex = getattr(mat, "baseColorTexture", None)
+    mr_tex = getattr(mat, "metallicRoughnessTexture", None)
+    if (base_tex is not None or mr_tex is not None) and not has_uv:
+        warnings.warn(f"{where}: material {getattr(mat, 'name', None)!r} has textures but the mesh has no UVs; "
+                      "the base colour texture's mean colour is used", stacklevel=4)
+        if base_tex is not None:
+            b = b * _texels(base_tex, True).reshape(-1, 3).mean(axis=0)
+        base_tex = mr_tex = None
+    out = pbr_material(b, m, r)
+    if mr_tex is not None:
+        metal = _texels(mr_tex, False)[..., 2:3]
+        base = np.ones_like(metal) if base_tex is None else _texels(base_tex, True)
+        if base_tex is not None and metal.shape[:2] != base.shape[:2]:
+            from PIL import Image
+
+            metal = np.asarray(mr_tex.convert("RGB").resize(base_tex.size, Image.BILINEAR),
+                               dtype=np.float64)[..., 2:3] / 255.0
+        mm = m * metal
+        return replace(out, kd=tuple(b), ka=tuple(b), mirror=tuple(b), texture=Texture(image=base * (1.0 - mm)),
+                       mirror_texture=Texture(image=base * mm))
+    if base_tex is not None:
+        tex = Texture(image=_texels(base_tex, True))
+        return replace(out, texture=tex, mirror_texture=tex if m > 0.0 else None)
+    return out
 
 
 def _node_transform(matrix: np.ndarray, where: str) -> Transform | None:
@@ -154,8 +196,10 @@ def load_assets(source: Any, transform: Any = None, *, smooth: bool = False, mat
         if len(geom.faces) == 0:
             continue
         if gname not in arrays:
-            arrays[gname] = (np.asarray(geom.vertices, dtype=np.float64), np.asarray(geom.faces, dtype=np.int64))
-        v, f = arrays[gname]
+            uv = getattr(geom.visual, "uv", None)
+            uv = None if uv is None or len(uv) != len(geom.vertices) else np.asarray(uv, dtype=np.float64)
+            arrays[gname] = (np.asarray(geom.vertices, dtype=np.float64), np.asarray(geom.faces, dtype=np.int64), uv)
+        v, f, uv = arrays[gname]
         world = outer_m @ np.asarray(matrix, dtype=np.float64)
         pose = _node_transform(world, where)
         if pose is None:
@@ -169,7 +213,7 @@ def load_assets(source: Any, transform: Any = None, *, smooth: bool = False, mat
             if key in mat_names:
                 name = mat_names[key]
             else:
-                warp_mat = _material_of(geom, where)
+                warp_mat = _material_of(geom, where, uv is not None)
                 if warp_mat is None:
                     name = DEFAULT_MATERIAL
                 else:
@@ -182,7 +226,7 @@ def load_assets(source: Any, transform: Any = None, *, smooth: bool = False, mat
                 mat_names[key] = name
         try:
             shapes.append(Mesh(vertices=v, faces=f, material=name, transform=pose, smooth=smooth,
-                               degenerate=degenerate))
+                               degenerate=degenerate, uv=uv))
         except SceneError as e:
             raise SceneError(f"{where}: {e.problem}", e.field) from None
     if not shapes:

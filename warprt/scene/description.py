@@ -24,6 +24,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..errors import SceneError
+from .meshfile import read_mesh_file, validate_uv
+from .texture import Texture, as_texture
 from .transform import Transform, as_transform, quaternion_product, quaternion_y_to, same_hemisphere
 from .values import (
     FLT_MIN_NORMAL, RGB, Vec3, as_choice, as_direction, as_float, as_int, as_keyframes, as_rgb, as_vec3, checked_keywords, norm,
@@ -190,6 +192,10 @@ class Material:
     Local shading is L = ka·Ia + Σ_lights kd·I·max(0, n·l) + ks·I·max(0, n·h)^p. ``mirror`` (km)
     weights the reflected ray and ``transparency`` (kt) the refracted one; with ``fresnel`` on,
     the transmitted share kt is split into reflection F·kt and refraction (1-F)·kt.
+
+    Textures (:class:`warprt.Texture`: a bitmap or a checker; a path stands for a bitmap file)
+    multiply a coefficient by their value at the hit: ``texture`` multiplies kd and ka (the
+    diffuse colour map), ``specular_texture`` ks and ``mirror_texture`` mirror.
     """
 
     kd: RGB = (0.8, 0.8, 0.8)  # diffuse reflectance
@@ -202,8 +208,15 @@ class Material:
     fresnel: str = "none"  # "none", "schlick" or "exact" dielectric Fresnel for transparent surfaces
     glossy_exponent: float = 0.0  # Phong lobe exponent around the mirror direction; 0 is a perfect mirror
     frosted_exponent: float = 0.0  # lobe exponent around the refracted direction; 0 is clear glass
+    texture: Texture | str | None = None  # multiplies kd and ka
+    specular_texture: Texture | str | None = None  # multiplies ks
+    mirror_texture: Texture | str | None = None  # multiplies mirror
+
+    TEXTURE_FIELDS = ("texture", "specular_texture", "mirror_texture")
 
     def __post_init__(self):
+        for name in self.TEXTURE_FIELDS:
+            set_field(self, name, as_texture(getattr(self, name), name))
         set_field(self, "kd", as_rgb(self.kd, "kd"))
         set_field(self, "ka", self.kd if self.ka is None else as_rgb(self.ka, "ka"))
         set_field(self, "ks", as_rgb(self.ks, "ks"))
@@ -452,6 +465,7 @@ class Mesh:
     transform: Transform | None = None
     transform_end: Transform | None = None  # instance transform at time 1 (motion blur)
     smooth: bool = False
+    uv: Any = None  # (N, 2) texture coordinates of inline vertices (a file brings its own)
     degenerate: str = "error"  # "error" or "drop": what to do with zero-area faces
     keyframes: tuple = ()  # animation: [{time, translate, rotate or quaternion, scale}, ...] (instance transform)
 
@@ -469,6 +483,9 @@ class Mesh:
                 set_field(self, "file", None)
                 set_field(self, "vertices", np.asarray(tm.vertices))
                 set_field(self, "faces", np.asarray(tm.faces))
+                tm_uv = getattr(getattr(tm, "visual", None), "uv", None)
+                if self.uv is None and tm_uv is not None and len(tm_uv) == len(tm.vertices):
+                    set_field(self, "uv", np.asarray(tm_uv))
                 break
         if (self.file is None) == (self.vertices is None):
             raise SceneError("give either file or vertices (with faces)", "file")
@@ -486,6 +503,10 @@ class Mesh:
             v, f = validate_arrays(self.vertices, self.faces)
             set_field(self, "vertices", v)
             set_field(self, "faces", f)
+        if self.uv is not None:
+            if self.file is not None:
+                raise SceneError("a mesh file brings its own texture coordinates (through trimesh): drop uv", "uv")
+            set_field(self, "uv", validate_uv(self.uv, len(self.vertices)))
         # a missing file is refused now, not when a render builds the scene; a relative path is
         # taken from the current folder, where the build would read it (scene files resolve
         # theirs against their own folder first)
@@ -884,6 +905,18 @@ def is_area_light(light) -> bool:
     return callable(getattr(light, "shape", None))
 
 
+def _has_uv(shape) -> bool:
+    """Whether a shape has texture coordinates (rectangles and spheres by their parametrisation,
+    meshes from their file or their ``uv``)."""
+    if isinstance(shape, (Rectangle, Sphere)):
+        return True
+    if isinstance(shape, Mesh):
+        if shape.file is None:
+            return shape.uv is not None
+        return read_mesh_file(shape.file)[2] is not None  # (the parsed file is cached for the build)
+    return False
+
+
 # the one list of each: scene-file type names, the classes behind them (the loader, Scene's
 # validation and the package's exports read these)
 SHAPE_TYPES = {"sphere": Sphere, "plane": Plane, "rectangle": Rectangle, "disk": Disk, "box": Box, "capsule": Capsule,
@@ -947,6 +980,13 @@ class Scene:
             if s.material not in mats:
                 known = ", ".join(sorted(mats))
                 raise SceneError(f"unknown material {s.material!r} (known: {known})", f"shapes[{i}].material")
+            uv_maps = [name for name in Material.TEXTURE_FIELDS
+                       if getattr(mats[s.material], name) is not None and getattr(mats[s.material], name).projection == "uv"]
+            if uv_maps and not _has_uv(s):
+                what = ("its mesh has no texture coordinates (give uv, or a file with UVs)" if isinstance(s, Mesh)
+                        else f"a {type(s).__name__.lower()} has no texture coordinates")
+                raise SceneError(f"material {s.material!r} maps its {uv_maps[0]} by uv, but {what}; use "
+                                 f"projection = \"triplanar\" or \"cubic\"", f"shapes[{i}].material")
         for i, light in enumerate(self.lights):
             if not isinstance(light, tuple(LIGHT_TYPES.values())):
                 raise SceneError(f"expected a light, got {type(light).__name__}", f"lights[{i}]")

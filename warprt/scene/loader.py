@@ -61,6 +61,25 @@ def _assets(item: Mapping[str, Any], where: str, base_dir: str, materials: dict)
     return shapes
 
 
+def _texture_paths(table: Any, base_dir: str, where: str) -> Any:
+    """A material table with its textures' image files resolved against the scene file's folder
+    (``texture = "wood.png"`` or ``texture = {file = "wood.png", ...}``)."""
+    if not isinstance(table, Mapping):
+        return table
+    out = dict(table)
+    for name in Material.TEXTURE_FIELDS:
+        value = out.get(name)
+        file = value if isinstance(value, str) else value.get("file") if isinstance(value, Mapping) else None
+        if not isinstance(file, str) or not file:
+            continue
+        path = os.path.join(base_dir, file)
+        if not os.path.isfile(path):
+            field = f"{where}.{name}" + (".file" if isinstance(value, Mapping) else "")
+            raise SceneError(f"texture file not found: {file!r} (looked in {os.path.abspath(path)!r})", field)
+        out[name] = os.path.abspath(path) if isinstance(value, str) else {**value, "file": os.path.abspath(path)}
+    return out
+
+
 def _make(cls: type, table: Any, where: str, skip: tuple[str, ...] = ()) -> Any:
     if not isinstance(table, Mapping):
         raise SceneError(f"expected a table, got {table!r}", where)
@@ -122,7 +141,8 @@ def parse_scene(data: Mapping[str, Any], source: str | None = None, base_dir: st
         mats_in = data.get("materials", {})
         if not isinstance(mats_in, Mapping):
             raise SceneError("expected tables [materials.NAME]", "materials")
-        materials = {name: _make(Material, m, f"materials.{name}") for name, m in mats_in.items()}
+        materials = {name: _make(Material, _texture_paths(m, base_dir, f"materials.{name}"), f"materials.{name}")
+                     for name, m in mats_in.items()}
         asset_materials: dict = {}
         shapes = _typed_list(data.get("shapes", []), SHAPE_TYPES, "shapes", base_dir, asset_materials)
         for name, m in asset_materials.items():
