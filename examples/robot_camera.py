@@ -5,16 +5,18 @@ colour with a stereo depth camera's noisy depth beside the exact one.
     python examples/robot_camera.py                      # 2 episodes x 4 worlds, 128x96, 6 steps, into out/robot/
     python examples/robot_camera.py results --width 48 --height 32 --spp 1 --steps 2 --worlds 2 --episodes 2
 
-Each episode draws a new scene (domain randomisation): object colours, the sun's intensity and
-the ambient light (the scene's, in every world), and per world the sun's direction and the
-camera's pose around the table (the batch's per-world arrays). Objects fall onto the table
-(Newton's XPBD solver) and every step renders every world through a head-mounted camera with a
-RealSense-like depth sensor (``warprt.DepthSensor``: stereo noise σ_Z = Z²·σ_d/(f·b), range
-limits, dropouts at grazing angles), the noise seeded by the step. For episode e, world w and
-step s it writes ``OUT/e{e}_w{w}_{s:03d}.png`` (colour), ``..._depth.png`` (the sensor's depth,
-near bright, no value black) and ``....exr`` (colour, exact ``Z`` and the sensor's ``sensor_z``
-layer). The scene is made in :func:`make_scene` (materials, lights, the sensor) and the camera
-in :func:`make_camera`: each is one place to change for other sensors or looks.
+Each episode draws new looks for every world at once (domain randomisation on the device: no
+rebuild, no recompile): each shape's colour and texture (a few procedural and bitmap textures
+projected triplanar or cubic, since Newton's boxes, spheres and capsules carry no UVs), the
+sun's intensity and direction, and the camera's pose around the table. Objects fall onto the
+table (Newton's XPBD solver) and every step renders every world through a head-mounted camera
+with a RealSense-like depth sensor (``warprt.DepthSensor``: stereo noise σ_Z = Z²·σ_d/(f·b),
+range limits, dropouts at grazing angles), the noise seeded by the step. For episode e, world w
+and step s it writes ``OUT/e{e}_w{w}_{s:03d}.png`` (colour), ``..._depth.png`` (the sensor's
+depth, near bright, no value black) and ``....exr`` (colour, exact ``Z`` and the sensor's
+``sensor_z`` layer). The scene is made in :func:`make_scene` (textures, lights, the sensor), the
+camera in :func:`make_camera` and the looks in :func:`randomise_worlds`: each is one place to
+change for other sensors or looks.
 """
 
 from __future__ import annotations
@@ -56,11 +58,21 @@ def build_model(worlds: int, rng):
     return builder.finalize(device="cpu")
 
 
-def randomise_colours(model, rng) -> None:
-    """New display (sRGB) colours for every shape of the model (the ground keeps grey)."""
-    colours = model.shape_color.numpy()
-    colours[1:] = rng.uniform(0.1, 0.95, size=(len(colours) - 1, 3))
-    model.shape_color.assign(colours)
+def make_textures(rng) -> list:
+    """A few textures for the shapes to wear: checkers and two bitmaps made here (a striped and a
+    speckled one), all projected in the shape's own frame (Newton's shapes have no UVs)."""
+    import warprt
+
+    stripes = np.zeros((16, 16, 3), np.float32)
+    stripes[:, ::4] = stripes[:, 1::4] = 0.8  # linear floats: no sRGB decode
+    stripes[:, 2::4] = stripes[:, 3::4] = 0.15
+    speckle = rng.uniform(0.3, 1.0, size=(32, 32, 1)).astype(np.float32).repeat(3, axis=-1)
+    return [
+        warprt.Texture(checker=[(0.9, 0.9, 0.9), (0.1, 0.1, 0.1)], scale=20.0, projection="cubic"),
+        warprt.Texture(checker=[(0.8, 0.2, 0.2), (0.9, 0.8, 0.2)], scale=30.0, projection="triplanar"),
+        warprt.Texture(image=stripes, scale=8.0, projection="triplanar"),
+        warprt.Texture(image=speckle, scale=4.0, projection="cubic"),
+    ]
 
 
 def make_camera(width: int, height: int):
@@ -71,23 +83,32 @@ def make_camera(width: int, height: int):
 
 
 def make_scene(model, camera, rng, spp: int):
-    """The renderer of one episode: the model's shapes and colours, a sun of random intensity, a
-    random ambient, the depth sensor."""
+    """The renderer: the model's shapes, a sun, some ambient light, the depth sensor and the
+    textures the worlds draw from."""
     import warprt
     from warprt.newton_bridge import NewtonRenderer
 
-    sun = warprt.DirectionalLight(direction=(-0.4, 0.3, -1.0), intensity=float(rng.uniform(0.6, 1.4)))
-    return NewtonRenderer(model, cameras=1, camera=camera, lights=(sun,), ambient=float(rng.uniform(0.05, 0.25)),
+    sun = warprt.DirectionalLight(direction=(-0.4, 0.3, -1.0), intensity=1.0)
+    return NewtonRenderer(model, cameras=1, camera=camera, lights=(sun,), ambient=0.12,
                           background=(0.6, 0.7, 0.85), render=warprt.RenderSettings(spp=spp, sampler="sobol"),
-                          depth_sensor=warprt.DepthSensor(**SENSOR))
+                          depth_sensor=warprt.DepthSensor(**SENSOR), textures=make_textures(rng))
 
 
 def randomise_worlds(renderer, rng) -> None:
-    """Per world: the sun's direction and the camera's pose (jittered about HEAD, levelled with
-    the model's up axis)."""
+    """New looks for every world: each shape's colour (sRGB drawn, linear given) and texture (or
+    none; the ground keeps its grey and no texture), the sun's intensity and direction, and the
+    camera's pose (jittered about HEAD, levelled with the model's up axis)."""
     import warprt
 
-    W = renderer.batch.worlds
+    W, S = renderer.batch.worlds, len(renderer.scene.shapes)
+    colours = warprt.srgb_to_linear(rng.uniform(0.1, 0.95, size=(W, S, 3)))
+    textures = rng.integers(-1, len(renderer.textures), size=(W, S))
+    ground = renderer.shape_map.newton_shape[0] == 0  # Newton's shape 0, in every world
+    colours[:, ground] = 0.2
+    textures[:, ground] = -1
+    renderer.set_shape_colors(colours)
+    renderer.set_shape_textures(textures)
+    renderer.set_light_intensities(rng.uniform(0.6, 1.4, size=(W, 1, 1)) * np.ones((1, 1, 3)))
     sun = np.column_stack([rng.uniform(-0.6, 0.6, W), rng.uniform(-0.6, 0.6, W), -np.ones(W)])
     renderer.batch.light_positions.assign(sun[:, None, :].astype(np.float32))  # (W, 1): the direction of travel
     eyes = np.asarray(HEAD) + rng.normal(scale=(0.08, 0.08, 0.05), size=(W, 3))
@@ -97,8 +118,10 @@ def randomise_worlds(renderer, rng) -> None:
 
 def depth_preview(z: np.ndarray, far: float) -> np.ndarray:
     """A grey image of a depth map: near bright, far dark, no value (NaN) black."""
+    import warprt
+
     v = np.where(np.isfinite(z), 1.0 - np.clip(z / far, 0.0, 1.0), 0.0).astype(np.float32)
-    return np.repeat(v[..., None], 3, axis=-1) ** 2.2  # (written as sRGB: a linear ramp on screen)
+    return warprt.srgb_to_linear(np.repeat(v[..., None], 3, axis=-1))  # (saved as sRGB: a linear ramp on screen)
 
 
 def main(argv=None) -> int:
@@ -109,7 +132,7 @@ def main(argv=None) -> int:
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--steps", type=int, default=6, help="frames per episode (each 1/10 s of simulation)")
     ap.add_argument("--worlds", type=int, default=4)
-    ap.add_argument("--episodes", type=int, default=2, help="scenes drawn (colours and lights randomised)")
+    ap.add_argument("--episodes", type=int, default=2, help="looks drawn (colours, textures, lights and cameras randomised)")
     ap.add_argument("--seed", type=int, default=0, help="the randomisation's and the noise's seed")
     args = ap.parse_args(argv)
     try:
@@ -128,9 +151,9 @@ def main(argv=None) -> int:
     substeps, dt = 8, 1.0 / 10.0 / 8
     os.makedirs(args.out_dir, exist_ok=True)
     valid = []
+    renderer = make_scene(model, camera, rng, args.spp)
+    first = None
     for episode in range(args.episodes):
-        randomise_colours(model, rng)
-        renderer = make_scene(model, camera, rng, args.spp)
         randomise_worlds(renderer, rng)
         s0, s1, control = model.state(), model.state(), model.control()
         for step in range(args.steps):
@@ -142,6 +165,8 @@ def main(argv=None) -> int:
             renderer.update(s0)
             seed = args.seed + episode * args.steps + step  # new noise every frame, reproducible
             out = renderer.render(seed=seed, aovs=["z", "sensor_z"])
+            if first is None:
+                first = dict(renderer.counters)
             for w in range(args.worlds):
                 frame = out.frame(w, 0)  # numpy copies: colour, z, sensor_z and the camera's matrices
                 name = os.path.join(args.out_dir, f"e{episode}_w{w}_{step:03d}")
@@ -149,9 +174,10 @@ def main(argv=None) -> int:
                 warprt.save_image(frame.image, name + ".png")
                 warprt.save_image(depth_preview(frame.aovs["sensor_z"], SENSOR["max_range"]), name + "_depth.png")
                 valid.append(float(np.isfinite(frame.aovs["sensor_z"]).mean()))
-        renderer.batch.close()
+    renderer.batch.close()
     print(f"{args.episodes} episodes x {args.worlds} worlds x {args.steps} steps at {args.width}x{args.height}, "
           f"{args.spp} spp; depth sensor: {np.mean(valid):.0%} of the pixels valid")
+    print(f"counters after the first frame {first} after the last {renderer.counters}")
     print(f"wrote {args.out_dir}")
     return 0
 
