@@ -317,8 +317,16 @@ class DeviceScene:
         had = bool(self._bins)
         self._bins = []
         budget = accel.BINS_MAX_ENTRIES  # (the instances share one budget of memory, in instance order)
-        still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0
-        tan_y = math.tan(math.radians(cam.fov) / 2.0)
+        # (bins serve rays from the eye: not the orthographic camera's; the others' reach beyond
+        # the pinhole's rectangle, or behind, goes through the tree as any ray off the grid does)
+        still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0 and cam.model != "orthographic"
+        if cam.fx is None:
+            tan_y = math.tan(math.radians(cam.fov) / 2.0)
+            tan_x, cell = tan_y * cam.aspect, 2.0 * tan_y / cam.height
+        else:  # the view's half extents about the axis (the principal point off centre)
+            tan_x = max(cam.cx + 0.5, cam.width - cam.cx - 0.5) / cam.fx
+            tan_y = max(cam.cy + 0.5, cam.height - cam.cy - 0.5) / cam.fy
+            cell = 1.0 / cam.fy
         identity = np.array([0.0, 0.0, 0.0, 1.0], np.float32)
         for i, key in enumerate(self.instance_assets):
             rows["bins"][i] = 0
@@ -330,8 +338,8 @@ class DeviceScene:
             # the origin as the kernel computes a camera ray's in object space (trace.to_object)
             origin = np.asarray(cam.eye, np.float32) - r["pos0"]
             with fast.timed("camera_bins"):
-                rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_y * cam.aspect,
-                                  tan_y, 2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
+                rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_x, tan_y,
+                                  cell / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
             if rec is None:
                 continue
             budget -= accel.camera_bins_size(rec)

@@ -79,8 +79,12 @@ def scene_camera_matrices(camera) -> tuple[np.ndarray, np.ndarray]:
     t = camera.shutter[0]
     eye, _ = camera.pose(t)
     u, v, w = camera.basis(t)
-    top = camera.distance * math.tan(math.radians(camera.fov) / 2.0)
-    return camera_matrices(eye, u, v, w, top, top * camera.aspect, camera.distance)
+    if camera.fx is None:
+        top = camera.distance * math.tan(math.radians(camera.fov) / 2.0)
+        return camera_matrices(eye, u, v, w, top, top * camera.aspect, camera.distance)
+    # (from intrinsics: the pinhole of the same fx, fy; the principal point's offset is not in it)
+    return camera_matrices(eye, u, v, w, camera.distance * camera.height / (2.0 * camera.fy),
+                           camera.distance * camera.width / (2.0 * camera.fx), camera.distance)
 
 
 def _shape_name(i: int, shape) -> str:
