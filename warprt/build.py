@@ -317,9 +317,11 @@ class DeviceScene:
         had = bool(self._bins)
         self._bins = []
         budget = accel.BINS_MAX_ENTRIES  # (the instances share one budget of memory, in instance order)
-        # (bins serve rays from the eye: not the orthographic camera's; the others' reach beyond
-        # the pinhole's rectangle, or behind, goes through the tree as any ray off the grid does)
-        still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0 and cam.model != "orthographic"
+        # (bins serve rays from the eye in front of it: the pinhole's and the opencv model's, whose
+        # rays beyond the pinhole's rectangle go through the tree as any ray off the grid does;
+        # not the orthographic camera's, nor the fisheye's, which reach behind the eye's plane)
+        still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0
+        still = still and cam.model in ("pinhole", "opencv")
         if cam.fx is None:
             tan_y = math.tan(math.radians(cam.fov) / 2.0)
             tan_x, cell = tan_y * cam.aspect, 2.0 * tan_y / cam.height
