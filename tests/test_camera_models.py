@@ -228,13 +228,15 @@ def test_beyond_the_monotonic_range_no_ray_and_the_render_shows_background():
     # a render: the pixels whose centres have no ray are background, the others see the wall
     scene = warprt.Scene(camera=cam, shapes=(warprt.Plane(point=(0, 0, -30), normal=tuple(-np.array(cam.basis()[2]))),),
                          lights=(), ambient=(1.0, 1.0, 1.0), background=(0.25, 0.5, 1.0)).with_settings(sampler="regular")
-    result = warprt.Renderer(scene, features=warprt.Features.full()).render(spp=1, aovs=["coverage"], progress=False)
     jj, ii = np.mgrid[0:H, 0:W]
     rdc = np.hypot((ii + 0.5 - 32.0) / 40.0, (jj + 0.5 - 24.0) / 40.0)
-    cov = result.aovs["coverage"]
-    assert (cov[rdc > d_max * 1.001] == 0).all() and (cov[rdc < d_max * 0.999] == 1).all()
-    out = result.image[rdc > d_max * 1.001]
-    np.testing.assert_allclose(out, np.broadcast_to([0.25, 0.5, 1.0], out.shape), rtol=1e-6)
+    for packets in (True, False):  # (camera packets mark a miss by the lane's reach, one by one by the ray's)
+        result = warprt.Renderer(scene, features=warprt.Features.full(), packets=packets).render(
+            spp=1, aovs=["coverage"], progress=False)
+        cov = result.aovs["coverage"]
+        assert (cov[rdc > d_max * 1.001] == 0).all() and (cov[rdc < d_max * 0.999] == 1).all()
+        out = result.image[rdc > d_max * 1.001]
+        np.testing.assert_allclose(out, np.broadcast_to([0.25, 0.5, 1.0], out.shape), rtol=1e-6)
 
 
 # --- fisheye ----------------------------------------------------------------------------------
@@ -477,3 +479,45 @@ def test_a_batch_renders_each_camera_with_its_own_model_as_a_single_render_does(
     for c in range(4):
         np.testing.assert_array_equal(again.frame(0, 3 - c).aovs["depth"], first[c])
     assert batch.counters["rebuilds"] == (2 if batch.bvh is not None else 1)
+
+
+# --- Newton's SensorCamera: the same rays from its own kernels -----------------------------------
+
+
+def test_newton_sensor_camera_rays_equal_warprt_s_with_its_conventions():
+    """Newton 1.8's ``SensorCamera`` ray bundles (camera space: x right, y up, looking along -z)
+    against warprt's camera at the origin looking along -z: its film form (focal length,
+    apertures, offsets) through ``Camera.from_aperture``, and its OpenCV pinhole, whose cx, cy
+    count pixel centres at i + 0.5 (OpenCV's + 0.5), to Newton's own undistortion's tolerance
+    (its acceptance is 2e-5 in normalised coordinates)."""
+    pytest.importorskip("newton")
+    from newton.sensors import SensorCamera
+
+    w, h = 16, 12
+    pose = dict(eye=(0, 0, 0), look_at=(0, 0, -1), up=(0, 1, 0), width=w, height=h)
+    film = dict(focal_length=2.0, horizontal_aperture=3.0, vertical_aperture=2.4, horizontal_aperture_offset=0.1,
+                vertical_aperture_offset=0.2)
+    theirs = SensorCamera.compute_camera_rays_pinhole(w, h, **film, device="cpu").numpy()[:, :, 0, 1].reshape(-1, 3)
+    ours = warprt.camera_rays(warprt.Scene(camera=warprt.Camera.from_aperture(**film, **pose)))[1]
+    np.testing.assert_allclose(ours, theirs, atol=8 * EPS32)
+    fx, fy, cx, cy = 11.0, 11.5, 7.2, 5.9
+    dist = dict(k1=-0.12, k2=0.02, p1=0.001, p2=-0.002, k3=0.001, k4=0.05, s1=0.001, s3=-0.002)
+    theirs = SensorCamera.compute_camera_rays_pinhole_opencv(w, h, fx, fy, cx + 0.5, cy + 0.5, **dist,
+                                                            device="cpu").numpy()[:, :, 0, 1].reshape(-1, 3)
+    coeffs = [dist.get(k, 0.0) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")]
+    cam = warprt.Camera(model="opencv", fx=fx, fy=fy, cx=cx, cy=cy, distortion=coeffs, **pose)
+    ours = warprt.camera_rays(warprt.Scene(camera=cam))[1]
+    both = (np.linalg.norm(theirs, axis=1) > 0.5) & (np.linalg.norm(ours, axis=1) > 0.5)
+    assert both.mean() > 0.9
+    np.testing.assert_allclose(ours[both], theirs[both], atol=4e-5)
+
+
+def test_left_out_intrinsics_follow_the_image():
+    """fy left out is fx; cx, cy left out are the image centre at the camera's present size (a
+    resized copy stays centred); fov left out is 45 degrees unless fx is given."""
+    import dataclasses
+
+    cam = warprt.Camera(fx=50.0, width=64, height=48)
+    assert cam.intrinsics() == (50.0, 50.0, 31.5, 23.5) and cam.fov is None
+    assert dataclasses.replace(cam, width=32).intrinsics() == (50.0, 50.0, 15.5, 23.5)
+    assert warprt.Camera(width=64, height=48).fov == 45.0

@@ -326,9 +326,10 @@ class DeviceScene:
             tan_y = math.tan(math.radians(cam.fov) / 2.0)
             tan_x, cell = tan_y * cam.aspect, 2.0 * tan_y / cam.height
         else:  # the view's half extents about the axis (the principal point off centre)
-            tan_x = max(cam.cx + 0.5, cam.width - cam.cx - 0.5) / cam.fx
-            tan_y = max(cam.cy + 0.5, cam.height - cam.cy - 0.5) / cam.fy
-            cell = 1.0 / cam.fy
+            fx, fy, cx, cy = cam.intrinsics()
+            tan_x = max(cx + 0.5, cam.width - cx - 0.5) / fx
+            tan_y = max(cy + 0.5, cam.height - cy - 0.5) / fy
+            cell = 1.0 / fy
         identity = np.array([0.0, 0.0, 0.0, 1.0], np.float32)
         for i, key in enumerate(self.instance_assets):
             rows["bins"][i] = 0

@@ -429,7 +429,7 @@ def _fov_entry(cam) -> float:
     the entry), the vertical field of view of a pinhole with its fy, 2 atan(height / 2 fy)."""
     if cam.fov is not None:
         return cam.fov
-    return math.degrees(2.0 * math.atan(cam.height / (2.0 * cam.fy)))
+    return math.degrees(2.0 * math.atan(cam.height / (2.0 * cam.intrinsics()[1])))
 
 
 def _positive_int(value, name: str) -> int:

@@ -160,11 +160,13 @@ class Camera:
         else:
             if self.fov is not None:
                 raise SceneError("give fov or the intrinsics fx (fy, cx, cy), not both (fov=None to use fx)", "fov")
+            # (fy, cx, cy left out stay None: fx, and the centre of the image at its present size)
             set_field(self, "fx", as_float(self.fx, "fx", minimum=0.0, strict_min=True, float32="normal"))
-            set_field(self, "fy", self.fx if self.fy is None else
-                      as_float(self.fy, "fy", minimum=0.0, strict_min=True, float32="normal"))
-            set_field(self, "cx", (self.width - 1) / 2.0 if self.cx is None else as_float(self.cx, "cx", float32="range"))
-            set_field(self, "cy", (self.height - 1) / 2.0 if self.cy is None else as_float(self.cy, "cy", float32="range"))
+            if self.fy is not None:
+                set_field(self, "fy", as_float(self.fy, "fy", minimum=0.0, strict_min=True, float32="normal"))
+            for name in ("cx", "cy"):
+                if getattr(self, name) is not None:
+                    set_field(self, name, as_float(getattr(self, name), name, float32="range"))
         d = self.distortion
         if isinstance(d, (str, bytes)) or not isinstance(d, (Sequence, np.ndarray)) or np.ndim(d) > 1 and \
                 not (np.ndim(d) == 2 and 1 in np.shape(d)):
@@ -185,13 +187,37 @@ class Camera:
                              f"{len(d)} coefficients", "distortion")
         set_field(self, "distortion", d)
 
+    @classmethod
+    def from_aperture(cls, focal_length: float, horizontal_aperture: float, vertical_aperture: float,
+                      horizontal_aperture_offset: float = 0.0, vertical_aperture_offset: float = 0.0,
+                      **fields) -> "Camera":
+        """A pinhole from USD's (and Newton's ``SensorCamera.compute_camera_rays_pinhole``) film
+        description: focal length and the film's apertures and offsets, in any one unit (only
+        their ratios count; offsets move the film window right and up). ``fields`` are the
+        camera's others (``width`` and ``height`` among them); the result has fx = focal ·
+        width / horizontal aperture, fy = focal · height / vertical aperture and the principal
+        point moved by the offsets from the image centre."""
+        names = ("focal_length", "horizontal_aperture", "vertical_aperture")
+        for name, value in zip(names, (focal_length, horizontal_aperture, vertical_aperture)):
+            as_float(value, name, minimum=0.0, strict_min=True)
+        h_off = as_float(horizontal_aperture_offset, "horizontal_aperture_offset")
+        v_off = as_float(vertical_aperture_offset, "vertical_aperture_offset")
+        width = as_int(fields.get("width", 320), "width", minimum=1)
+        height = as_int(fields.get("height", 240), "height", minimum=1)
+        fx = focal_length * width / horizontal_aperture
+        fy = focal_length * height / vertical_aperture
+        return cls(fx=fx, fy=fy, cx=(width - 1) / 2.0 - h_off * fx / focal_length,
+                   cy=(height - 1) / 2.0 + v_off * fy / focal_length, **fields)
+
     def intrinsics(self) -> tuple[float, float, float, float]:
         """(fx, fy, cx, cy) in pixels, OpenCV's convention (pixel centres at integers); from the
         field of view where fx is not given (fx = fy = height / (2 tan(fov / 2)), centred)."""
+        cx = (self.width - 1) / 2.0 if self.cx is None else self.cx
+        cy = (self.height - 1) / 2.0 if self.cy is None else self.cy
         if self.fx is not None:
-            return self.fx, self.fy, self.cx, self.cy
+            return self.fx, self.fx if self.fy is None else self.fy, cx, cy
         f = self.height / (2.0 * math.tan(math.radians(self.fov) / 2.0))
-        return f, f, (self.width - 1) / 2.0, (self.height - 1) / 2.0
+        return f, f, cx, cy
 
     def camera_matrix(self) -> np.ndarray:
         """OpenCV's 3×3 camera matrix K of :meth:`intrinsics`."""
