@@ -521,3 +521,22 @@ def test_left_out_intrinsics_follow_the_image():
     assert cam.intrinsics() == (50.0, 50.0, 31.5, 23.5) and cam.fov is None
     assert dataclasses.replace(cam, width=32).intrinsics() == (50.0, 50.0, 15.5, 23.5)
     assert warprt.Camera(width=64, height=48).fov == 45.0
+
+
+def test_a_distorted_thin_lens_focuses_each_pixel_where_its_pinhole_ray_meets_the_plane_of_focus():
+    """The opencv model with a thin lens: a pixel's rays from every lens point meet where its
+    distorted pinhole ray (aperture 0) crosses the plane of focus, ``focus_distance`` along -w."""
+    dist = DISTORTIONS["barrel 5"]
+    lensed = _camera(model="opencv", distortion=dist, aperture=0.2, focus_distance=3.0, **K_OPENCV)
+    pinhole = _camera(model="opencv", distortion=dist, **K_OPENCV)
+    w = np.asarray(lensed.basis()[2])
+    rng = np.random.default_rng(4)
+    raster = np.repeat(rng.uniform(0, [W, H], (20, 2)), 16, axis=0)
+    lens = rng.uniform(0, 1, (len(raster), 2))
+    o, d = warprt.camera_rays(warprt.Scene(camera=lensed), points=raster, lens=lens)
+    o0, d0 = warprt.camera_rays(warprt.Scene(camera=pinhole), points=raster)
+    focus = o0 + d0 * (3.0 / (d0 @ -w))[:, None]  # the pinhole ray at depth 3 along the axis
+    t = ((focus - o) @ -w) / (d @ -w)
+    hit = o + d * t[:, None]
+    np.testing.assert_allclose(hit, focus, atol=8 * EPS32 * 3.0)  # (measured: 2.1 roundoffs of the depth at most)
+    assert np.linalg.norm(o - o0, axis=1).max() > 0.1  # the origins spread over the lens
