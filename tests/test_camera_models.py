@@ -239,6 +239,59 @@ def test_beyond_the_monotonic_range_no_ray_and_the_render_shows_background():
         np.testing.assert_allclose(out, np.broadcast_to([0.25, 0.5, 1.0], out.shape), rtol=1e-6)
 
 
+def test_monotonic_range_against_closed_forms_and_a_dense_scan():
+    """``distortion_limit``: r / (1 + k4 r²) peaks at r = 1/√k4 with 1/(2√k4) (the rational
+    denominator alone); 1 - r² in the denominator (k4 = -1) is a pole at r = 1 where the map
+    grows without bound; a model monotonic everywhere has no limit; and for the full 12-term
+    calibrations the limit is where a dense scan of the float64 map first stops growing."""
+    k4 = 2.5
+    assert cm.distortion_limit("opencv", [0, 0, 0, 0, 0, k4, 0, 0]) == pytest.approx((1 / math.sqrt(k4),
+                                                                                     0.5 / math.sqrt(k4)), rel=1e-9)
+    r_max, d_max = cm.distortion_limit("opencv", [0, 0, 0, 0, 0, -1.0, 0, 0])
+    assert r_max == pytest.approx(1.0, rel=1e-9) and d_max > 1e6
+    assert cm.distortion_limit("opencv", [0.1, 0.01, 0, 0]) == (cm.NO_LIMIT, cm.NO_LIMIT)
+    for coeffs in ((0.3, -0.4, 0.0, 0.0, 0.05, 0.45, -0.05, 0.02), (0.2, -0.3, 0.001, 0.0, 0.02, 0.1, 0.2, -0.01),
+                   (-0.35, 0.12, 0.002, -0.001, -0.02, 0.0, 0.01, 0.0, 0.004, -0.001, -0.003, 0.0008)):
+        c = np.zeros(12)
+        c[:len(coeffs)] = coeffs
+        k1, k2, _, _, k3, k4, k5, k6 = c[:8]
+        r = np.linspace(0, 6, 3_000_001)
+        g = r * (1 + k1 * r**2 + k2 * r**4 + k3 * r**6) / (1 + k4 * r**2 + k5 * r**4 + k6 * r**6)
+        first = int(np.argmax(np.diff(g) <= 0))
+        assert first > 0
+        assert cm.distortion_limit("opencv", coeffs)[0] == pytest.approx(r[first], abs=4e-6)
+
+
+def test_a_pixel_without_a_ray_meets_no_shape_of_any_kind():
+    """The direction (0, 0, 0) of a pixel without a ray is a miss for every intersector (spheres,
+    planes, rectangles, disks, boxes, capsules, cylinders, meshes), even with the eye inside or on
+    them, in packets and one by one: those pixels are background; the others all hit (the eye is
+    inside a sphere)."""
+    import trimesh
+
+    cam = _camera(model="opencv", distortion=(-0.6, 0.0, 0.0, 0.0), fx=40.0, fy=40.0, cx=31.5, cy=23.5)
+    eye = np.asarray(cam.eye)
+    tm = trimesh.creation.box((1.0, 1.0, 1.0))
+    shapes = (warprt.Sphere(center=tuple(eye + 0.3), radius=40.0), warprt.Plane(point=tuple(eye), normal=(0, 1, 0)),
+              warprt.Rectangle(corner=tuple(eye - 0.5), edge1=(1, 0, 0), edge2=(0, 1, 0)),
+              warprt.Disk(center=tuple(eye), normal=(0, 0, 1), radius=0.5),
+              warprt.Box(center=tuple(eye), size=(1, 1, 1)), warprt.Capsule(start=tuple(eye - 0.2), end=tuple(eye + 0.2)),
+              warprt.Cylinder(start=tuple(eye - 0.2), end=tuple(eye + 0.2), radius=0.3),
+              warprt.Mesh(vertices=np.asarray(tm.vertices) + eye, faces=np.asarray(tm.faces)))
+    scene = warprt.Scene(camera=cam, shapes=shapes, lights=(), ambient=(1.0, 1.0, 1.0),
+                         background=(0.25, 0.5, 1.0)).with_settings(sampler="regular")
+    r_max, d_max = cm.distortion_limit("opencv", [-0.6, 0, 0, 0])
+    jj, ii = np.mgrid[0:H, 0:W]
+    rdc = np.hypot((ii + 0.5 - 32.0) / 40.0, (jj + 0.5 - 24.0) / 40.0)
+    for packets in (True, False):
+        result = warprt.Renderer(scene, features=warprt.Features.full(), packets=packets).render(
+            spp=1, aovs=["coverage"], progress=False)
+        cov = result.aovs["coverage"]
+        assert (cov[rdc > d_max * 1.001] == 0).all() and (cov[rdc < d_max * 0.999] == 1).all()
+        out = result.image[rdc > d_max * 1.001]
+        np.testing.assert_array_equal(out, np.broadcast_to(np.float32([0.25, 0.5, 1.0]), out.shape))
+
+
 # --- fisheye ----------------------------------------------------------------------------------
 
 FISHEYE = dict(fx=18.0, fy=18.5, cx=31.7, cy=23.2)

@@ -20,8 +20,10 @@ Camera models (``Camera.model``, run-time data in ``CameraData``: no kernel vari
   first stops growing (or its denominator reaches 0); beyond it the model folds back and a pixel
   has two preimages or none. A raster point whose solution lies beyond r_max, or whose solution
   does not reproduce it to ``UNDISTORT_TOLERANCE`` pixels after ``UNDISTORT_ITERATIONS``, gets
-  no ray: ``camera_ray`` returns the direction (0, 0, 0), which a render shows as background
-  (a miss: alpha 0, no depth) and ``camera_rays`` returns as it is.
+  no ray: ``camera_ray`` returns the direction (0, 0, 0); the render kernel traces such a
+  camera ray over an empty interval (not every intersector misses a zero direction by itself),
+  so the pixel shows background (a miss: alpha 0, no depth), and ``camera_rays`` returns the
+  direction as it is.
 * fisheye: OpenCV's fisheye model (Kannala-Brandt with 4 terms): the angle θ from the optical
   axis maps to θd = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸) in normalised coordinates, for any θ
   up to π (OpenCV's projectPoints stops at 90°: it goes through x / z). The inverse is Newton's
