@@ -81,15 +81,16 @@ def _undistort_cv(pixels, K, dist):
                                    None, None, crit).reshape(-1, 2)
 
 
-def _pixel_scale(cam, raster, dist, fisheye=False, h=1e-6):
+def _pixel_scale(cam, raster, dist, fisheye=False, und=None, h=1e-6):
     """The pixel shift per unit relative change of the ray direction at each raster point:
     |d pixel / d (x_n, y_n)| · (1 + r²) for the opencv model (a direction's relative error moves
-    the normalised point by about (1 + r²) times it), |d pixel / d θ| for the fisheye."""
+    the normalised point by about (1 + r²) times it; ``und``: the normalised points, else
+    OpenCV's undistortion of the raster points), |d pixel / d θ| for the fisheye."""
     K = cam.camera_matrix()
     if fisheye:
         return np.full(len(raster), max(cam.fx, cam.fy) * 4.0)
     scale = []
-    for (x, y) in _undistort_cv(raster - 0.5, K, dist):
+    for (x, y) in (_undistort_cv(raster - 0.5, K, dist) if und is None else und):
         pts = np.array([[x, y, 1.0], [x + h, y, 1.0], [x, y + h, 1.0]])
         p, _ = cv2.projectPoints(pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.asarray(dist, np.float64))
         p = p.reshape(-1, 2)
@@ -237,6 +238,33 @@ def test_beyond_the_monotonic_range_no_ray_and_the_render_shows_background():
         assert (cov[rdc > d_max * 1.001] == 0).all() and (cov[rdc < d_max * 0.999] == 1).all()
         out = result.image[rdc > d_max * 1.001]
         np.testing.assert_allclose(out, np.broadcast_to([0.25, 0.5, 1.0], out.shape), rtol=1e-6)
+
+
+def test_a_pincushion_that_folds_back_keeps_its_rays_up_to_its_limit():
+    """k1 = 1, k2 = -0.5: the radial map grows up to r_max = 1.21 and folds back there, at a
+    distorted radius d_max = 1.69 beyond r_max, so raster points between the two lie beyond the
+    monotonic range's undistorted radius yet have a ray (the one inside it). Every raster point up
+    to d_max (1 - 1e-4) gets it, and it round-trips through cv2 to the float32 tolerance; none
+    beyond d_max (1 + 1e-4) has one."""
+    dist = (1.0, -0.5, 0.0, 0.0)
+    r_max, d_max = cm.distortion_limit("opencv", dist)
+    assert d_max > 1.3 * r_max
+    f = 20.0
+    cam = _camera(model="opencv", distortion=dist, fx=f, fy=f, cx=31.5, cy=23.5)
+    rng = np.random.default_rng(9)
+    rd = d_max * np.sqrt(rng.uniform(0, 1, 4000)) * (1 - 1e-4)
+    ang = rng.uniform(0, 2 * np.pi, len(rd))
+    raster = np.stack([32 + f * rd * np.cos(ang), 24 + f * rd * np.sin(ang)], 1)
+    assert (rd > r_max).mean() > 0.3
+    o, d = warprt.camera_rays(warprt.Scene(camera=cam), points=raster)
+    assert (np.linalg.norm(d, axis=1) > 0.999).all()
+    back = _project_cv(cam, (o + 2.0 * d).astype(np.float64), dist)
+    _, _, R = _cv_pose(cam)
+    pc = (R @ d.astype(np.float64).T).T
+    tol = ROUND_TRIP_ULPS * EPS32 * _pixel_scale(cam, raster, dist, und=pc[:, :2] / pc[:, 2:])
+    assert (np.abs(back - raster).max(axis=1) <= tol).all()
+    outside = np.stack([32 + f * d_max * (1 + 1e-4) * np.cos(ang), 24 + f * d_max * (1 + 1e-4) * np.sin(ang)], 1)
+    assert (np.linalg.norm(warprt.camera_rays(warprt.Scene(camera=cam), points=outside)[1], axis=1) == 0).all()
 
 
 def test_monotonic_range_against_closed_forms_and_a_dense_scan():

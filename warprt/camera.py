@@ -131,10 +131,12 @@ def clamp_radius(p: wp.vec2, r_max: float) -> wp.vec2:
 @wp.func
 def opencv_undistort(cam: CameraData, xd: float, yd: float) -> wp.vec3:
     """The normalised point (x, y) that ``opencv_distort`` takes to (xd, yd), and 1 where it was
-    found (0: no ray; see the module docstring): Newton's method from (xd, yd), each iterate
-    kept within the monotonic range's radius r_max."""
+    found (0: no ray; see the module docstring): Newton's method from (xd, yd) scaled by r_max /
+    d_max (the monotonic range's radii, undistorted and distorted: the first guess lies inside
+    it, where a pincushion that folds back maps points beyond r_max); an answer beyond r_max (the
+    fold's other branch) is refused."""
     target = wp.vec2(xd, yd)
-    p = clamp_radius(target, cam.r_max)
+    p = clamp_radius(target * (cam.r_max / cam.d_max), cam.r_max)
     for _it in range(UNDISTORT_ITERATIONS):
         e = opencv_distort(cam, p[0], p[1]) - target
         j = opencv_jacobian(cam, p[0], p[1])
@@ -142,7 +144,7 @@ def opencv_undistort(cam: CameraData, xd: float, yd: float) -> wp.vec3:
         if not (det > 0.0):
             break
         step = wp.vec2(j[3] * e[0] - j[1] * e[1], j[0] * e[1] - j[2] * e[0]) / det
-        p = clamp_radius(p - step, cam.r_max)
+        p = p - step
         if wp.length_sq(step) <= 1.0e-14 * (1.0 + wp.length_sq(p)):
             break
     e = opencv_distort(cam, p[0], p[1]) - target
