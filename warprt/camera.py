@@ -133,8 +133,9 @@ def opencv_undistort(cam: CameraData, xd: float, yd: float) -> wp.vec3:
     """The normalised point (x, y) that ``opencv_distort`` takes to (xd, yd), and 1 where it was
     found (0: no ray; see the module docstring): Newton's method from (xd, yd) scaled by r_max /
     d_max (the monotonic range's radii, undistorted and distorted: the first guess lies inside
-    it, where a pincushion that folds back maps points beyond r_max); an answer beyond r_max (the
-    fold's other branch) is refused."""
+    it, where a pincushion that folds back maps points beyond r_max). The steps stop where the
+    Jacobian's determinant is no longer positive (the fold), so they never reach the fold's other
+    branch; what has not converged there is refused by its residual."""
     target = wp.vec2(xd, yd)
     p = clamp_radius(target * (cam.r_max / cam.d_max), cam.r_max)
     for _it in range(UNDISTORT_ITERATIONS):
@@ -142,15 +143,14 @@ def opencv_undistort(cam: CameraData, xd: float, yd: float) -> wp.vec3:
         j = opencv_jacobian(cam, p[0], p[1])
         det = j[0] * j[3] - j[1] * j[2]
         if not (det > 0.0):
-            break
+            break  # (past the fold, or at it: the map no longer increases; the steps stay on its near side)
         step = wp.vec2(j[3] * e[0] - j[1] * e[1], j[0] * e[1] - j[2] * e[0]) / det
         p = p - step
         if wp.length_sq(step) <= 1.0e-14 * (1.0 + wp.length_sq(p)):
             break
     e = opencv_distort(cam, p[0], p[1]) - target
     ok = float(0.0)
-    if wp.abs(e[0]) * cam.pfx <= UNDISTORT_TOLERANCE and wp.abs(e[1]) * cam.pfy <= UNDISTORT_TOLERANCE \
-            and wp.length(p) < cam.r_max:
+    if wp.abs(e[0]) * cam.pfx <= UNDISTORT_TOLERANCE and wp.abs(e[1]) * cam.pfy <= UNDISTORT_TOLERANCE:
         ok = 1.0
     return wp.vec3(p[0], p[1], ok)
 
