@@ -319,6 +319,9 @@ def to_mitsuba(scene: warprt.Scene, mi, *, sampler: str = "independent", spp: in
         raise ExportError("motion (a moving camera, sphere, mesh or solid): Mitsuba 3 has no animated transforms; "
                           "render scene_at_time(scene, t) at several times instead")
     cam = scene.camera
+    if cam.model != "pinhole" or cam.fx is not None:
+        raise ExportError(f"camera model {cam.model!r} from intrinsics: the export writes Mitsuba's perspective sensor "
+                          "from a field of view only")
     to_world = mi.ScalarTransform4f().look_at(origin=list(map(float, cam.eye)), target=list(map(float, cam.look_at)),
                                              up=list(map(float, cam.up)))
     sensor = {"type": "perspective", "fov": float(cam.fov), "fov_axis": "y", "to_world": to_world,

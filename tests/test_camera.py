@@ -177,9 +177,9 @@ def test_zero_aperture_ignores_the_lens_samples():
 
 def _random_cameras(rng, n: int, eye_exp: float, look_exp: float, lens: bool = False) -> list:
     """n random cameras' device records: eyes up to 10^eye_exp from the origin, look-at points up
-    to 10^look_exp from the eye, tilted up vectors, 5-150° fields of view, images of 1-399 pixels a
-    side, image planes at 0.01-100; with ``lens``, apertures 1e-4-3.2 and focus distances
-    0.1-100."""
+    to 10^look_exp from the eye, tilted up vectors, 5-150° fields of view (or, for 30% of them,
+    intrinsics with fx ≠ fy and the principal point off centre), images of 1-399 pixels a side,
+    image planes at 0.01-100; with ``lens``, apertures 1e-4-3.2 and focus distances 0.1-100."""
     from warprt import camera as cm
 
     cams = []
@@ -190,6 +190,10 @@ def _random_cameras(rng, n: int, eye_exp: float, look_exp: float, lens: bool = F
         kw = dict(eye=tuple(eye), look_at=tuple(look), up=tuple(rng.normal(0, 1, 3)), fov=float(rng.uniform(5, 150)),
                   width=int(rng.integers(1, 400)), height=int(rng.integers(1, 400)),
                   distance=float(10.0 ** rng.uniform(-2, 2)))
+        if rng.random() < 0.3:  # intrinsics: focal lengths apart, the principal point off centre
+            f = kw["height"] / (2 * math.tan(math.radians(kw.pop("fov")) / 2))
+            kw.update(fx=f * rng.uniform(0.8, 1.25), fy=f, cx=rng.uniform(-0.2, 1.2) * kw["width"],
+                      cy=rng.uniform(-0.2, 1.2) * kw["height"])
         if lens:
             optics = dict(aperture=float(10.0 ** rng.uniform(-4, 0.5)), focus_distance=float(10.0 ** rng.uniform(-1, 2)))
         scene = warprt.Scene(camera=warprt.Camera(**kw, **optics), shapes=(warprt.Sphere(center=(0, 0, 0), radius=1.0),),
@@ -233,7 +237,8 @@ def test_a_packets_directions_equal_camera_ray_lane_by_lane(device):
             dx = cm.PacketF()
             dy = cm.PacketF()
             dz = cm.PacketF()
-            packet(cam.right, cam.top, cam.dist, cam.width, cam.height, f.u, f.v, f.w, px, py, dx, dy, dz)
+            packet(cam.right, cam.top, cam.x_off, cam.y_off, cam.dist, cam.width, cam.height, f.u, f.v, f.w, px, py, dx, dy,
+                   dz)
             for j in range(8):
                 out[i, j] = wp.vec3(dx[j], dy[j], dz[j])
                 r = cm.camera_ray(cam, fx[i, j], fy[i, j], wp.vec2(0.5, 0.5), cam.t_open)
@@ -296,8 +301,8 @@ def test_a_lens_packets_rays_equal_camera_ray_lane_by_lane(device):
             dx = cm.PacketF()
             dy = cm.PacketF()
             dz = cm.PacketF()
-            packet(cam.right, cam.top, cam.dist, cam.focus, cam.lens_radius, cam.width, cam.height, f.eye, f.u, f.v,
-                   f.w, fx, fy, lx, ly, ox, oy, oz, dx, dy, dz)
+            packet(cam.right, cam.top, cam.x_off, cam.y_off, cam.dist, cam.focus, cam.lens_radius, cam.width,
+                   cam.height, f.eye, f.u, f.v, f.w, fx, fy, lx, ly, ox, oy, oz, dx, dy, dz)
             for j in range(8):
                 out[i, j, 0] = wp.vec3(ox[j], oy[j], oz[j])
                 out[i, j, 1] = wp.vec3(dx[j], dy[j], dz[j])

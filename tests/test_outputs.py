@@ -216,13 +216,16 @@ def test_ids_carry_a_name_table(tmp_path):
 # --- the camera in the header ----------------------------------------------------------------------
 
 
-def test_world_to_camera_and_ndc_follow_openexr_and_place_every_hit_in_its_pixel(tmp_path):
+@pytest.mark.parametrize("optics", [dict(fov=40), dict(fx=30.0, fy=33.0, cx=0.3 * W, cy=0.65 * H)],
+                         ids=["fov", "intrinsics off centre"])
+def test_world_to_camera_and_ndc_follow_openexr_and_place_every_hit_in_its_pixel(tmp_path, optics):
     """OpenEXR's worldToCamera and worldToNDC (Imath: row vector times matrix): the visible point
     of each pixel (the position AOV, from the renderer's own hits) lands in camera space at the
     renderer's own camera-space depth (the z AOV) and in NDC at its pixel's centre, ((i + 0.5) /
-    W, (j + 0.5) / H), y down; the eye is the origin and the look-at point in front (z > 0)."""
+    W, (j + 0.5) / H), y down; the eye is the origin and the look-at point in front (z > 0). The
+    same for a camera from intrinsics whose principal point is off centre."""
     eye, look = (1.0, 2.0, 3.0), (-0.5, -1.0, -1.0)
-    scene = warprt.Scene(camera=warprt.Camera(eye=eye, look_at=look, fov=40, width=W, height=H),
+    scene = warprt.Scene(camera=warprt.Camera(eye=eye, look_at=look, width=W, height=H, **optics),
                          shapes=(warprt.Plane(point=(0, -1, 0), normal=(0, 1, 0)),),
                          render=warprt.RenderSettings(sampler="regular", spp=1))
     r = render_full(scene, ["position", "z", "coverage"])

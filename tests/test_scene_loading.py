@@ -859,7 +859,8 @@ def test_keyword_checks_keep_signatures_defaults_and_replace():
 
     assert list(inspect.signature(Sphere).parameters) == [
         "center", "radius", "material", "center_end", "transform", "keyframes"]
-    assert inspect.signature(Camera).parameters["fov"].default == 45.0
+    assert inspect.signature(Camera).parameters["width"].default == 320
+    assert inspect.signature(Camera).parameters["fov"].default is None and Camera().fov == 45.0  # (unless fx is given)
     s = Sphere((1, 2, 3), 2.0)
     assert dataclasses.replace(s, radius=3).radius == 3.0 and dataclasses.replace(s, radius=3).center == (1, 2, 3)
     with pytest.raises(SceneError, match="did you mean 'radius'"):

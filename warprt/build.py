@@ -334,8 +334,19 @@ class DeviceScene:
         had = bool(self._bins)
         self._bins = []
         budget = accel.BINS_MAX_ENTRIES  # (the instances share one budget of memory, in instance order)
+        # (bins serve rays from the eye in front of it: the pinhole's and the opencv model's, whose
+        # rays beyond the pinhole's rectangle go through the tree as any ray off the grid does;
+        # not the orthographic camera's, nor the fisheye's, which reach behind the eye's plane)
         still = not cam.moves and cam.aperture == 0.0 and rs.t_min == 0.0
-        tan_y = math.tan(math.radians(cam.fov) / 2.0)
+        still = still and cam.model in ("pinhole", "opencv")
+        if cam.fx is None:
+            tan_y = math.tan(math.radians(cam.fov) / 2.0)
+            tan_x, cell = tan_y * cam.aspect, 2.0 * tan_y / cam.height
+        else:  # the view's half extents about the axis (the principal point off centre)
+            fx, fy, cx, cy = cam.intrinsics()
+            tan_x = max(cx + 0.5, cam.width - cx - 0.5) / fx
+            tan_y = max(cy + 0.5, cam.height - cy - 0.5) / fy
+            cell = 1.0 / fy
         identity = np.array([0.0, 0.0, 0.0, 1.0], np.float32)
         for i, key in enumerate(self.instance_assets):
             rows["bins"][i] = 0
@@ -347,8 +358,8 @@ class DeviceScene:
             # the origin as the kernel computes a camera ray's in object space (trace.to_object)
             origin = np.asarray(cam.eye, np.float32) - r["pos0"]
             with fast.timed("camera_bins"):
-                rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_y * cam.aspect,
-                                  tan_y, 2.0 * tan_y / cam.height / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
+                rec = camera_bins(tree.tris, origin, np.subtract(cam.look_at, cam.eye), cam.up, tan_x, tan_y,
+                                  cell / accel.BINS_PER_PIXEL, (r["olo"], r["ohi"]), budget)
             if rec is None:
                 continue
             budget -= accel.camera_bins_size(rec)

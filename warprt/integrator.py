@@ -37,7 +37,7 @@ import warp as wp
 from . import _warp, kernels
 from ._warp import build_once
 from .aov import AovData, make_aov_sample
-from .camera import camera_frame, camera_packet, camera_ray, lens_packet
+from .camera import MODEL_PINHOLE, camera_frame, camera_packet, camera_ray, lens_packet
 from .fast import (
     FAST_CAMERA_PACKET_RAYS, FAST_COLUMN_BLOCKS, FAST_MESH_PACKETS, FAST_SHADING_PACKETS, FAST_SOBOL_PACKETS,
 )
@@ -154,8 +154,11 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         lens position ul_in (the last two read only where the camera moves, or has a lens)."""
         time = cam.t_open
         if wp.static(F.motion):
-            if params.moving != 0 and cam.t_close > cam.t_open:
-                time = cam.t_open + (cam.t_close - cam.t_open) * ut
+            if params.moving != 0:
+                # a rolling shutter exposes row py over [open, close] + py · line delay
+                time = cam.t_open + cam.line_delay * float(py)
+                if cam.t_close > cam.t_open:
+                    time = time + (cam.t_close - cam.t_open) * ut
         ul = wp.vec2(0.5, 0.5)
         if wp.static(F.lens):
             if cam.lens_radius > 0.0:
@@ -238,9 +241,10 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
         mixed = bool(False)
         # a camera at rest: its frame once, a packet's 8 rays at once (camera_packet for a pinhole,
         # lens_packet for a thin lens)
-        still = True
+        # (the packets make the pinhole model's rays: the other models' go one by one)
+        still = cam.model == MODEL_PINHOLE
         if wp.static(F.motion):
-            if params.moving != 0 and cam.t_close > cam.t_open:
+            if params.moving != 0 and (cam.t_close > cam.t_open or cam.line_delay > 0.0):
                 still = False
         pinhole = still and cam.lens_radius <= 0.0
         lensed = False
@@ -343,10 +347,11 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                         fxp[k] = float(px0 + (jk >> sh)) + ufx[k]
                         fyp[k] = float(py + (jk & rm)) + ufy[k]
                     if pinhole:
-                        camera_packet(cam.right, cam.top, cam.dist, cam.width, cam.height, frame.u, frame.v, frame.w,
-                                      fxp, fyp, dxp, dyp, dzp)
+                        camera_packet(cam.right, cam.top, cam.x_off, cam.y_off, cam.dist, cam.width, cam.height,
+                                      frame.u, frame.v, frame.w, fxp, fyp, dxp, dyp, dzp)
                     else:
-                        lens_packet(cam.right, cam.top, cam.dist, cam.focus, cam.lens_radius, cam.width, cam.height,
+                        lens_packet(cam.right, cam.top, cam.x_off, cam.y_off, cam.dist, cam.focus, cam.lens_radius,
+                                    cam.width, cam.height,
                                     frame.eye, frame.u, frame.v, frame.w, fxp, fyp, ulx, uly, oxp, oyp, ozp, dxp, dyp,
                                     dzp)
                 for k in range(lanes):
@@ -384,6 +389,9 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                     pk.dz[k] = cd[2]
                     pk.time[k] = ct
                     pk.best[k] = params.t_max
+                    if cam.model != MODEL_PINHOLE:
+                        if wp.length_sq(cd) == 0.0:
+                            pk.best[k] = -1.0  # no ray (camera.model_ray): a miss, as an unused lane
                     pk.kind[k] = KIND_NONE
                     pk.index[k] = -1
                 if packed:
@@ -604,6 +612,9 @@ def kernels_for(F: Features, packets: bool) -> SimpleNamespace:
                         if e.depth == 0:
                             t_lo = params.t_min
                             t_hi = params.t_max
+                            if cam.model != MODEL_PINHOLE:
+                                if wp.length_sq(e.d) == 0.0:
+                                    t_hi = -1.0  # no ray (camera.model_ray): a miss
                         h = Hit()
                         if wp.static(packets):
                             if e.depth == 0 and packed:

@@ -127,8 +127,11 @@ def camera_rays(scene: Scene, points=None, lens=None, time: float = 0.0, device:
     """Camera rays (origins, unit directions), each (N, 3) float32 numpy.
 
     ``points`` are raster positions (N, 2) in pixels, x right and y down from the top-left corner;
-    by default every pixel centre in row-major order (pixel (i, j) at (i + 0.5, j + 0.5)).
-    ``lens`` are (N, 2) lens samples in [0, 1)^2 (ignored by a pinhole camera).
+    by default every pixel centre in row-major order (pixel (i, j) at (i + 0.5, j + 0.5); OpenCV's
+    pixel (i, j) is raster point (i + 0.5, j + 0.5) too). ``lens`` are (N, 2) lens samples in
+    [0, 1)^2 (ignored by a pinhole camera). Every camera model gives its rays (the orthographic
+    one from points on the plane through the eye); a raster point the model has no ray for (beyond
+    a distortion's monotonic range, see ``warprt.camera``) gets the direction (0, 0, 0).
     """
     _warp.init()
     if not isinstance(scene, Scene):

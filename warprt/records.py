@@ -310,6 +310,23 @@ class CameraData:
     t_close: float
     width: int
     height: int
+    # the camera model (camera.MODEL_*) and its run-time data (camera.camera_data); the pinhole's
+    # image plane spans u in [-x_off, 2 right - x_off], v in [y_off - 2 top, y_off] (x_off = right,
+    # y_off = top when centred)
+    model: int
+    x_off: float
+    y_off: float
+    pfx: float  # fx, fy in pixels (orthographic: pixels per scene unit)
+    pfy: float
+    pcx: float  # the principal point as a raster position: OpenCV's cx + 0.5, cy + 0.5
+    pcy: float
+    dk0: wp.vec4  # opencv: k1, k2, k3, k4; fisheye: k1, k2, k3, k4
+    dk1: wp.vec4  # opencv: k5, k6, p1, p2
+    dk2: wp.vec4  # opencv: s1, s2, s3, s4
+    r_max: float  # opencv: the undistorted radius's valid limit; fisheye: theta's (camera.distortion_limit)
+    d_max: float  # the distorted radius there: raster points beyond it get no ray
+    line_delay: float  # rolling shutter: time per row
+    from_fov: int  # 1: the plane (and fx, fy) from a field of view (BatchRenderer.fov sets it per camera)
 
 
 @wp.struct

@@ -37,17 +37,23 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def camera_matrices(eye, u, v, w, top: float, right: float, dist: float) -> tuple[np.ndarray, np.ndarray]:
+def camera_matrices(eye, u, v, w, top: float, right: float, dist: float, x_off: float | None = None,
+                    y_off: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(worldToCamera, worldToNDC) of a camera at ``eye`` with axes u (right), v (up), w (back)
-    and an image plane at distance ``dist`` of half height ``top`` and half width ``right``: 4×4
-    float32 in OpenEXR's layout (see the module docstring)."""
+    and an image plane at distance ``dist`` of half height ``top`` and half width ``right``,
+    spanning u in [-x_off, 2 right - x_off] and v in [y_off - 2 top, y_off] (centred when not
+    given; a principal point off centre): 4×4 float32 in OpenEXR's layout (see the module
+    docstring). A camera model other than the pinhole gets the matrix of the pinhole with its
+    fx, fy, cx, cy (a distortion, a fisheye or an orthographic view is not a 4×4 projection)."""
     eye, u, v, w = (np.asarray(x, np.float64) for x in (eye, u, v, w))
     to_camera = np.eye(4)  # for column vectors; stored transposed
     to_camera[0, :3], to_camera[1, :3], to_camera[2, :3] = u, v, -w
     to_camera[:3, 3] = 0.0 - to_camera[:3, :3] @ eye  # (0.0 - x: no -0.0 in the header)
     sx, sy = dist / (2.0 * right), dist / (2.0 * top)
-    to_ndc = np.array([[sx, 0.0, 0.5, 0.0],  # x/z scaled, shifted to [0, 1]
-                       [0.0, -sy, 0.5, 0.0],  # y down
+    ox = 0.5 if x_off is None else x_off / (2.0 * right)
+    oy = 0.5 if y_off is None else y_off / (2.0 * top)
+    to_ndc = np.array([[sx, 0.0, ox, 0.0],  # x/z scaled, shifted to [0, 1]
+                       [0.0, -sy, oy, 0.0],  # y down
                        [0.0, 0.0, 0.0, 1.0],  # third: 1/z after the division
                        [0.0, 0.0, 1.0, 0.0]])  # the division by z
     return to_camera.T.astype(np.float32), (to_ndc @ to_camera).T.astype(np.float32)
@@ -69,7 +75,8 @@ def camera_record_matrices(rec) -> tuple[np.ndarray, np.ndarray]:
     w = _unit(eye - look)
     u = _unit(np.cross(get("up"), w))
     v = np.cross(w, u)
-    return camera_matrices(eye, u, v, w, float(get("top")), float(get("right")), float(get("dist")))
+    return camera_matrices(eye, u, v, w, float(get("top")), float(get("right")), float(get("dist")),
+                           float(get("x_off")), float(get("y_off")))
 
 
 def scene_camera_matrices(camera) -> tuple[np.ndarray, np.ndarray]:
@@ -79,8 +86,13 @@ def scene_camera_matrices(camera) -> tuple[np.ndarray, np.ndarray]:
     t = camera.shutter[0]
     eye, _ = camera.pose(t)
     u, v, w = camera.basis(t)
-    top = camera.distance * math.tan(math.radians(camera.fov) / 2.0)
-    return camera_matrices(eye, u, v, w, top, top * camera.aspect, camera.distance)
+    if camera.fx is None:
+        top = camera.distance * math.tan(math.radians(camera.fov) / 2.0)
+        return camera_matrices(eye, u, v, w, top, top * camera.aspect, camera.distance)
+    fx, fy, cx, cy = camera.intrinsics()
+    d = camera.distance
+    return camera_matrices(eye, u, v, w, d * camera.height / (2.0 * fy), d * camera.width / (2.0 * fx), d,
+                           d * (cx + 0.5) / fx, d * (cy + 0.5) / fy)
 
 
 def _shape_name(i: int, shape) -> str:

@@ -22,7 +22,11 @@ builds the scene once and keeps, on the device:
 * ``camera_poses`` (W, C) ``wp.transform``: camera to world; the camera looks along its local
   -z with +y up (the OpenGL convention). ``camera_poses_end``: at shutter close (the up vector
   is the shutter-open one). ``fov`` (C,) float32: each camera's vertical field of view in
-  degrees. Image size, aperture, focus and shutter are the scene camera's.
+  degrees. Image size, aperture, focus and shutter are the scene camera's, unless the batch is
+  given a list of cameras (``BatchRenderer(scene, cameras=[...])`` or ``set_cameras``): each
+  then has its own model (intrinsics, distortion, fisheye, orthographic), aperture, shutter and
+  rolling shutter, with the scene camera's image size; a camera given by intrinsics ignores its
+  ``fov`` entry.
 
 Write into these arrays in place, from Warp kernels or with ``wp.copy`` (``set_*`` methods
 accept numpy, ``wp.array``s of transforms or of 4×4 matrices): a render reads them with three
@@ -51,6 +55,7 @@ from . import _warp, kernels
 from ._warp import build_once
 from .accel import build_tree, forest_nodes, refit_kernel
 from .build import ANALYTIC_BVH_MIN, DeviceScene, render_params
+from .camera import camera_data
 from .checks import EXTENT_LIMIT, NONE, check_batch, describe_transform
 from .errors import RenderError
 from .film import Film, FilmData, claim_block
@@ -67,7 +72,7 @@ from .render import (
     SLICE_BLOCK, SLICES_PER_WORKER, WorkerPool, _slices, check_seed, default_workers, pixels_per_thread, run_pass,
 )
 from .errors import SceneError
-from .scene.description import SPP_LIMIT, DirectionalLight, PointLight, Scene
+from .scene.description import SPP_LIMIT, Camera, DirectionalLight, PointLight, Scene
 from .scene.texture import Texture, as_texture
 from .geometry import disk_extent
 from .poses import up_vector, warn_rolled
@@ -197,12 +202,12 @@ def _pose_kernels():
         tables.plights[w, i] = rec
 
     @wp.kernel(module="warprt_worlds", enable_backward=False)
-    def pose_cameras(base: CameraData, poses: wp.array2d(dtype=wp.transform),
+    def pose_cameras(lenses: wp.array(dtype=CameraData), poses: wp.array2d(dtype=wp.transform),
                      poses_end: wp.array2d(dtype=wp.transform), fov: wp.array(dtype=float),
                      cams: wp.array(dtype=CameraData)):
         w, c = wp.tid()
         n_cams = poses.shape[1]
-        cam = base
+        cam = lenses[c]
         T0 = poses[w, c]
         T1 = poses_end[w, c]
         q0 = wp.transform_get_rotation(T0)
@@ -212,8 +217,13 @@ def _pose_kernels():
         cam.eye1 = wp.transform_get_translation(T1)
         cam.look1 = cam.eye1 + wp.quat_rotate(wp.transform_get_rotation(T1), forward)
         cam.up = wp.normalize(wp.quat_rotate(q0, wp.vec3(0.0, 1.0, 0.0)))
-        cam.top = base.dist * wp.tan(0.5 * wp.radians(fov[c]))
-        cam.right = cam.top * float(base.width) / float(base.height)
+        if cam.from_fov != 0:  # (a camera given by intrinsics keeps its own plane)
+            cam.top = cam.dist * wp.tan(0.5 * wp.radians(fov[c]))
+            cam.right = cam.top * float(cam.width) / float(cam.height)
+            cam.x_off = cam.right
+            cam.y_off = cam.top
+            cam.pfy = 0.5 * float(cam.height) / wp.tan(0.5 * wp.radians(fov[c]))
+            cam.pfx = cam.pfy
         cams[w * n_cams + c] = cam
 
     @wp.kernel(module="warprt_worlds", enable_backward=False)
@@ -447,6 +457,36 @@ def camera_quaternion(eye, look_at, up) -> np.ndarray:
     return np.array(wp.quat_from_matrix(wp.mat33(*m.reshape(-1))), dtype=np.float64)
 
 
+def _camera_models(cameras, scene_camera) -> list:
+    """A batch's cameras (warprt.Camera, the scene camera's image size), else a RenderError."""
+    if not cameras:
+        raise RenderError("cameras: an empty list (give a count or at least one warprt.Camera)")
+    out = []
+    for i, c in enumerate(cameras):
+        if not isinstance(c, Camera):
+            raise RenderError(f"cameras[{i}]: expected a warprt.Camera, got {type(c).__name__}")
+        if (c.width, c.height) != (scene_camera.width, scene_camera.height):
+            raise RenderError(f"cameras[{i}]: {c.width}×{c.height} pixels, but a batch's images are the scene "
+                              f"camera's {scene_camera.width}×{scene_camera.height}")
+        out.append(c)
+    return out
+
+
+def _camera_pose_pair(cam) -> tuple:
+    """A camera's poses (translation + quaternion) at times 0 and 1, as ``camera_poses`` holds them."""
+    eye1, look1 = cam.pose(1.0)
+    return (np.concatenate([cam.eye, camera_quaternion(cam.eye, cam.look_at, cam.up)]),
+            np.concatenate([eye1, camera_quaternion(eye1, look1, cam.up)]))
+
+
+def _fov_entry(cam) -> float:
+    """A camera's ``fov`` entry: its field of view; for one given by intrinsics (which ignores
+    the entry), the vertical field of view of a pinhole with its fy, 2 atan(height / 2 fy)."""
+    if cam.fov is not None:
+        return cam.fov
+    return math.degrees(2.0 * math.atan(cam.height / (2.0 * cam.intrinsics()[1])))
+
+
 def _positive_int(value, name: str) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise RenderError(f"{name} must be a positive integer, got {value!r}")
@@ -480,6 +520,10 @@ class BatchRenderer:
         #: rolled against it are warned about (warprt.poses)
         self.up_axis = up_vector(scene.camera.up if up_axis is None else up_axis, "up_axis")
         self.worlds = _positive_int(worlds, "worlds")
+        models = None
+        if isinstance(cameras, (list, tuple)):
+            models = _camera_models(cameras, scene.camera)
+            cameras = len(models)
         self.cameras = _positive_int(cameras, "cameras")
         _warp.init()
         self.device = dev = _warp.resolve_device(device)
@@ -505,6 +549,8 @@ class BatchRenderer:
             raise RenderError(f"textures must be a list of warprt.Texture (or image paths), got {textures!r:.60}")
         if textures:
             F = F.union(Features(textures=True))
+        if models is not None and any(m.aperture > 0.0 for m in models):
+            F = F.union(Features(lens=True))
         self.features = F
         d = self.built.data
 
@@ -555,12 +601,14 @@ class BatchRenderer:
         self._n_shapes, self._n_lights = S, len(lights)
         self._directional_lights = [int(isinstance(light, DirectionalLight)) for light in lights]
         self._light_index = [i for i, light in enumerate(scene.lights) if isinstance(light, (PointLight, DirectionalLight))]
-        eye1, look1 = cam.pose(1.0)
-        t0 = np.concatenate([cam.eye, camera_quaternion(cam.eye, cam.look_at, cam.up)])
-        t1 = np.concatenate([eye1, camera_quaternion(eye1, look1, cam.up)])
-        self.camera_poses = wp.array(np.tile(t0.astype(np.float32), (W, C, 1)), dtype=wp.transform, device=dev)
-        self.camera_poses_end = wp.array(np.tile(t1.astype(np.float32), (W, C, 1)), dtype=wp.transform, device=dev)
-        self.fov = wp.array(np.full(C, cam.fov, np.float32), dtype=float, device=dev)
+        models = models or [cam] * C
+        t0, t1 = zip(*(_camera_pose_pair(m) for m in models))
+        self.camera_poses = wp.array(np.tile(np.array(t0, np.float32)[None], (W, 1, 1)), dtype=wp.transform, device=dev)
+        self.camera_poses_end = wp.array(np.tile(np.array(t1, np.float32)[None], (W, 1, 1)), dtype=wp.transform,
+                                         device=dev)
+        self.fov = wp.array(np.array([_fov_entry(m) for m in models], np.float32), dtype=float, device=dev)
+        self._lenses = wp.array([camera_data(m) for m in models], dtype=CameraData, device=dev)
+        self.camera_models = tuple(models)
         self._cams = wp.zeros(W * C, dtype=CameraData, device=dev)
         self.counters["host_transfers"] += 7
 
@@ -682,6 +730,25 @@ class BatchRenderer:
         shape = (self.worlds, self._n_shapes)
         wp.copy(self.shape_poses, self._check_poses(poses, shape, "shape_poses"))
         wp.copy(self.shape_poses_end, self._check_poses(poses if end is None else end, shape, "shape_poses_end"))
+
+    def set_cameras(self, cameras) -> None:
+        """Each of the C cameras' model from a list of ``warprt.Camera`` (intrinsics, distortion,
+        orthographic, aperture, shutter, rolling shutter; image size as the scene's), and its
+        pose and field of view from the camera's own; no rebuild, no recompile."""
+        models = _camera_models(cameras, self.scene.camera)
+        if len(models) != self.cameras:
+            raise RenderError(f"cameras: {len(models)} cameras given for a batch of {self.cameras}")
+        if not self.features.lens and any(m.aperture > 0.0 for m in models):
+            raise RenderError("cameras: a thin lens (aperture > 0) in a batch built without one (give the cameras "
+                              "when the BatchRenderer is made, or features=warprt.Features(lens=True))")
+        t0, t1 = zip(*(_camera_pose_pair(m) for m in models))
+        for array, t in ((self.camera_poses, t0), (self.camera_poses_end, t1)):  # (as the constructor's)
+            wp.copy(array, wp.array(np.tile(np.array(t, np.float32)[None], (self.worlds, 1, 1)), dtype=wp.transform,
+                                    device=self.device))
+        wp.copy(self.fov, wp.array(np.array([_fov_entry(m) for m in models], np.float32), dtype=float,
+                                   device=self.device))
+        wp.copy(self._lenses, wp.array([camera_data(m) for m in models], dtype=CameraData, device=self.device))
+        self.camera_models = tuple(models)
 
     def set_camera_poses(self, poses, end=None) -> None:
         """Camera-to-world poses, (W, C) (the camera looks along its local -z, +y up; make them
@@ -848,7 +915,7 @@ class BatchRenderer:
                   inputs=[d, self.material_colors, self.material_textures, len(self.built.textures), self.tables])
         cam_end = self.camera_poses_end if self.motion_blur or self.scene.camera.moves else self.camera_poses
         wp.launch(pose_cameras, dim=(self.worlds, self.cameras), device=dev,
-                  inputs=[self.built.camera, self.camera_poses, cam_end, self.fov, self._cams])
+                  inputs=[self._lenses, self.camera_poses, cam_end, self.fov, self._cams])
         if self._use_bvh:
             wp.launch(world_bounds, dim=self.worlds * self._per_world, device=dev,
                       inputs=[self.tables, self._prims, self._per_world, int(self.features.motion), self._lowers,

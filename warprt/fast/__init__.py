@@ -90,7 +90,9 @@ _LIST = (
               "integrator.render_pixels (sobol), lights.area_lights_packet", "kernel", FAST_SOBOL_PACKETS,
               ("camera_packets",)),
     Mechanism("camera_packet_rays", "a packet's 8 camera rays made at once (camera.camera_packet, lens_packet)",
-              "Sobol packets and a camera at rest (pinhole or thin lens)",
+              "Sobol packets and a pinhole or thin-lens camera at rest (from a field of view or intrinsics, no "
+              "rolling shutter while something moves); the opencv, fisheye and orthographic models take "
+              "camera.camera_ray lane by lane",
               "integrator.render_pixels", "kernel", FAST_CAMERA_PACKET_RAYS, ("sobol_packets",)),
     Mechanism("column_blocks", "a thread takes its block of 4 rows column by column, so that packets over several "
               "pixels cover 2 x 4 patches (integrator.render_kernel's sh)",

@@ -31,7 +31,7 @@ def in_use(renderer) -> dict[str, bool]:
     sobol = packets and SAMPLER_IDS[scene.render.sampler] == SAMPLER_IDS["sobol"]
     cam = scene.camera
     # (a camera at rest: the kernel's time is fixed unless the scene itself moves, whatever the kernel)
-    still = not built.features.motion or cam.shutter[1] <= cam.shutter[0]
+    still = not built.features.motion or (cam.shutter[1] <= cam.shutter[0] and cam.rolling_shutter == 0.0)
     mesh_packets = packets and meshes
     faces = [built.assets[key][2].n_faces if built.assets[key][2] is not None else 0 for key in built.instance_assets]
     prims = d.bvh_prims.numpy() if d.bvh_root >= 0 else np.zeros((0, 2), np.int32)
@@ -43,7 +43,7 @@ def in_use(renderer) -> dict[str, bool]:
         "shading_packets": shading,
         "shadow_packets": shadow,
         "sobol_packets": sobol,
-        "camera_packet_rays": sobol and still,
+        "camera_packet_rays": sobol and still and cam.model == "pinhole",
         "column_blocks": cpu and meshes and cam.height >= 4,
         "analytic_bvh": d.bvh_root >= 0,
         "rect_pieces": len(prims) > len({(int(k), int(i)) for k, i in prims}),

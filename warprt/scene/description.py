@@ -36,6 +36,7 @@ SAMPLERS = ("regular", "independent", "stratified", "sobol")  # RenderSettings.s
 LIGHT_SAMPLING = ("uniform", "cosine")  # RenderSettings.light_sampling (ids: their order)
 FALLOFFS = ("none", "inverse_square")
 FRESNEL_MODES = ("none", "schlick", "exact")
+CAMERA_MODELS = ("pinhole", "opencv", "fisheye", "orthographic")  # Camera.model (ids: their order)
 MAX_DEPTH_LIMIT = 64
 # most samples per pixel one render may ask for (scene files, --spp, Renderer.render); to render
 # "as long as it takes", ask for SPP_LIMIT with a time_budget or a target_error instead
@@ -66,17 +67,25 @@ class Animation:
 @checked_keywords
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole or thin-lens camera.
+    """The camera: a pinhole or thin lens, an OpenCV-calibrated camera with lens distortion, an
+    OpenCV fisheye (Kannala-Brandt) or an orthographic view (``model``).
 
     The image plane sits at distance ``distance`` (the lecture's D) along -w; its half height is
     D·tan(fov/2) and its half width that times width/height. Pixel (i, j), with j counted from the
     top row, has its centre at raster position (i + 0.5, j + 0.5).
+
+    Intrinsics ``fx``, ``fy``, ``cx``, ``cy`` are in pixels with OpenCV's meaning: the centre of
+    pixel (i, j) is at (i, j) in OpenCV's pixel coordinates (raster position (i + 0.5, j + 0.5)
+    here), so a calibration's camera matrix is pasted as it is. ``distortion`` is OpenCV's
+    ``distCoeffs`` in its order: (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4]]]) for the
+    ``opencv`` model, (k1, k2, k3, k4) for ``fisheye``. ``rolling_shutter`` is the line delay:
+    row j is exposed over [open + j·delay, close + j·delay] (time units per row).
     """
 
     eye: Vec3 = (0.0, 0.0, 5.0)
     look_at: Vec3 = (0.0, 0.0, 0.0)
     up: Vec3 = (0.0, 1.0, 0.0)
-    fov: float = 45.0  # vertical field of view, degrees
+    fov: float | None = None  # vertical field of view, degrees (45 unless fx is given)
     width: int = 320  # pixels
     height: int = 240  # pixels
     distance: float = 1.0  # D: eye to image plane, scene units (does not change a pinhole image)
@@ -86,16 +95,22 @@ class Camera:
     eye_end: Vec3 | None = None  # eye at time 1 (camera motion)
     look_at_end: Vec3 | None = None  # look_at at time 1
     keyframes: tuple = ()  # animation: [{time, eye, look_at}, ...]
+    model: str = "pinhole"  # "pinhole", "opencv", "fisheye" or "orthographic" (CAMERA_MODELS)
+    fx: float | None = None  # focal length in pixels (orthographic: pixels per scene unit); else from fov
+    fy: float | None = None  # default fx
+    cx: float | None = None  # principal point, OpenCV pixels (pixel centres at integers); default (width - 1) / 2
+    cy: float | None = None  # default (height - 1) / 2
+    distortion: tuple = ()  # OpenCV distCoeffs (see above); () is none
+    rolling_shutter: float = 0.0  # line delay: time units per row (0: a global shutter)
 
     def __post_init__(self):
         set_field(self, "eye", as_vec3(self.eye, "eye"))
         set_field(self, "look_at", as_vec3(self.look_at, "look_at"))
         set_field(self, "up", as_direction(self.up, "up"))
-        set_field(self, "fov", as_float(self.fov, "fov", minimum=0.0, strict_min=True))
-        if self.fov >= 180.0:
-            raise SceneError(f"must be < 180 degrees, got {self.fov:g}", "fov")
+        set_field(self, "model", as_choice(self.model, "model", CAMERA_MODELS))
         set_field(self, "width", as_int(self.width, "width", minimum=1, maximum=1 << 15))
         set_field(self, "height", as_int(self.height, "height", minimum=1, maximum=1 << 15))
+        self._check_intrinsics()
         set_field(self, "distance",
                   as_float(self.distance, "distance", minimum=0.0, strict_min=True, float32="normal"))
         set_field(self, "aperture", as_float(self.aperture, "aperture", minimum=0.0, float32="range"))
@@ -114,9 +129,108 @@ class Camera:
         if self.look_at_end is not None:
             set_field(self, "look_at_end", as_vec3(self.look_at_end, "look_at_end"))
         set_field(self, "keyframes", as_keyframes(self.keyframes, "keyframes", ("eye", "look_at")))
+        set_field(self, "rolling_shutter", as_float(self.rolling_shutter, "rolling_shutter", minimum=0.0))
+        if self.rolling_shutter > 0.0:
+            # poses are given at times 0 and 1 (and the scene's bounds cover that span): every
+            # row's exposure must lie within it
+            last = self.shutter[1] + (self.height - 1) * self.rolling_shutter
+            if self.shutter[0] < 0.0 or last > 1.0:
+                raise SceneError(f"the last row's exposure ends at {self.shutter[1]:g} + {self.height - 1} × "
+                                 f"{self.rolling_shutter:g} = {last:g}, after time 1 (poses are given at times 0 and "
+                                 "1): shorten the shutter or the line delay", "rolling_shutter")
+        if self.aperture > 0.0 and self.model in ("fisheye", "orthographic"):
+            raise SceneError(f"a thin lens (aperture > 0) is for the pinhole and opencv models, not {self.model!r}",
+                             "aperture")
         for t in (0.0, 1.0):
             self.basis(t)  # raises when the view is degenerate
         self._check_float32()
+
+    def _check_intrinsics(self) -> None:
+        """fov or the intrinsics (fx, fy, cx, cy), and the distortion's coefficients for the model."""
+        model = self.model
+        if self.fx is None:
+            for name in ("fy", "cx", "cy"):
+                if getattr(self, name) is not None:
+                    raise SceneError(f"{name} is given without fx (give fx, and fy, cx, cy as needed)", name)
+            if model in ("fisheye", "orthographic"):
+                what = "pixels per scene unit" if model == "orthographic" else "pixels per radian"
+                raise SceneError(f"the {model} model needs fx ({what}); fov is for the pinhole and opencv models", "fx")
+            fov = 45.0 if self.fov is None else self.fov
+            set_field(self, "fov", as_float(fov, "fov", minimum=0.0, strict_min=True))
+            if self.fov >= 180.0:
+                raise SceneError(f"must be < 180 degrees, got {self.fov:g}", "fov")
+        else:
+            if self.fov is not None:
+                raise SceneError("give fov or the intrinsics fx (fy, cx, cy), not both (fov=None to use fx)", "fov")
+            # (fy, cx, cy left out stay None: fx, and the centre of the image at its present size)
+            set_field(self, "fx", as_float(self.fx, "fx", minimum=0.0, strict_min=True, float32="normal"))
+            if self.fy is not None:
+                set_field(self, "fy", as_float(self.fy, "fy", minimum=0.0, strict_min=True, float32="normal"))
+            for name in ("cx", "cy"):
+                if getattr(self, name) is not None:
+                    set_field(self, name, as_float(getattr(self, name), name, float32="range"))
+        d = self.distortion
+        if isinstance(d, (str, bytes)) or not isinstance(d, (Sequence, np.ndarray)) or np.ndim(d) > 1 and \
+                not (np.ndim(d) == 2 and 1 in np.shape(d)):
+            raise SceneError(f"expected a list of coefficients (OpenCV's distCoeffs), got {d!r:.80}", "distortion")
+        d = tuple(as_float(v, f"distortion[{i}]", float32="range") for i, v in enumerate(np.ravel(np.asarray(d, dtype=object))))
+        if model == "opencv":
+            if len(d) == 14:
+                raise SceneError("14 coefficients: the tilted-sensor terms (tauX, tauY) are not supported; give 4, 5, "
+                                 "8 or 12 (k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4]]])", "distortion")
+            if len(d) not in (0, 4, 5, 8, 12):
+                raise SceneError(f"the opencv model takes 4, 5, 8 or 12 coefficients in OpenCV's order (k1, k2, p1, p2"
+                                 f"[, k3[, k4, k5, k6[, s1, s2, s3, s4]]]), got {len(d)}", "distortion")
+        elif model == "fisheye":
+            if len(d) not in (0, 4):
+                raise SceneError(f"the fisheye model takes 4 coefficients (k1, k2, k3, k4), got {len(d)}", "distortion")
+        elif d:
+            raise SceneError(f"the {model} model has no distortion (use model = \"opencv\" or \"fisheye\"), got "
+                             f"{len(d)} coefficients", "distortion")
+        set_field(self, "distortion", d)
+
+    @classmethod
+    def from_aperture(cls, focal_length: float, horizontal_aperture: float, vertical_aperture: float,
+                      horizontal_aperture_offset: float = 0.0, vertical_aperture_offset: float = 0.0,
+                      **fields) -> "Camera":
+        """A pinhole from USD's (and Newton's ``SensorCamera.compute_camera_rays_pinhole``) film
+        description: focal length and the film's apertures and offsets, in any one unit (only
+        their ratios count; offsets move the film window right and up). ``fields`` are the
+        camera's others (``width`` and ``height`` among them); the result has fx = focal ·
+        width / horizontal aperture, fy = focal · height / vertical aperture and the principal
+        point moved by the offsets from the image centre."""
+        names = ("focal_length", "horizontal_aperture", "vertical_aperture")
+        for name, value in zip(names, (focal_length, horizontal_aperture, vertical_aperture)):
+            as_float(value, name, minimum=0.0, strict_min=True)
+        h_off = as_float(horizontal_aperture_offset, "horizontal_aperture_offset")
+        v_off = as_float(vertical_aperture_offset, "vertical_aperture_offset")
+        width = as_int(fields.get("width", 320), "width", minimum=1)
+        height = as_int(fields.get("height", 240), "height", minimum=1)
+        fx = focal_length * width / horizontal_aperture
+        fy = focal_length * height / vertical_aperture
+        return cls(fx=fx, fy=fy, cx=(width - 1) / 2.0 - h_off * fx / focal_length,
+                   cy=(height - 1) / 2.0 + v_off * fy / focal_length, **fields)
+
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in pixels, OpenCV's convention (pixel centres at integers); from the
+        field of view where fx is not given (fx = fy = height / (2 tan(fov / 2)), centred)."""
+        cx = (self.width - 1) / 2.0 if self.cx is None else self.cx
+        cy = (self.height - 1) / 2.0 if self.cy is None else self.cy
+        if self.fx is not None:
+            return self.fx, self.fx if self.fy is None else self.fy, cx, cy
+        f = self.height / (2.0 * math.tan(math.radians(self.fov) / 2.0))
+        return f, f, cx, cy
+
+    def camera_matrix(self) -> np.ndarray:
+        """OpenCV's 3×3 camera matrix K of :meth:`intrinsics`."""
+        fx, fy, cx, cy = self.intrinsics()
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+    def dist_coeffs(self) -> np.ndarray:
+        """The distortion as OpenCV takes it: 12 coefficients for ``opencv`` (zeros padded), 4 for
+        ``fisheye``, none otherwise."""
+        n = {"opencv": 12, "fisheye": 4}.get(self.model, 0)
+        return np.array(list(self.distortion) + [0.0] * (n - len(self.distortion)), np.float64)
 
     @property
     def aspect(self) -> float:
@@ -157,6 +271,8 @@ class Camera:
                 raise SceneError(f"eye and look_at are {gap:.3g} apart, but in float32, which the renderer computes "
                                  f"in, they {why}: the camera has no viewing direction; move look_at further (any "
                                  "point along the view gives the same image) or scale the scene", field)
+        if self.fx is not None:
+            return  # (fx is a normal float32 and the image at most 2^15 pixels: the plane's size is fine)
         with np.errstate(under="ignore"):
             top = f32(self.distance) * f32(math.tan(math.radians(self.fov) / 2.0))
         if not top >= FLT_MIN_NORMAL:
