@@ -247,3 +247,26 @@ def test_the_command_line_writes_the_sensor_outputs_of_a_scene_file(tmp_path, ca
     inside = np.isfinite(z) & (z <= 4.0)
     np.testing.assert_array_equal(sz[inside], z[inside])  # no noise: the exact depth within the range
     assert (sz[~inside] == 0).all() and (~inside).any()
+
+
+def test_an_orthographic_cameras_dropouts_judge_the_angle_to_its_parallel_rays():
+    """Parallel rays straight down on a floor meet it head-on everywhere (θ = 0), though the
+    line from the image's corners to the camera's centre is 86° off the normal; on a floor
+    tilted 45° every pixel sees θ = 45°. With dropouts from 20° (certain from 21°) the first
+    keeps every pixel, the second none, in single renders and batches."""
+    sensor = warprt.DepthSensor(dropout_start=20.0, dropout_end=21.0)
+    cam = warprt.Camera(model="orthographic", fx=1.6, eye=(0, 1, 0), look_at=(0, 0, 0), up=(0, 0, -1),
+                        width=32, height=32)  # 20 × 20 scene units seen from 1 unit above the floor
+    high = warprt.Camera(model="orthographic", fx=1.6, eye=(0, 20, 0), look_at=(0, 0, 0), up=(0, 0, -1),
+                         width=32, height=32)
+
+    def floor(normal):  # (the tilted floor, seen from higher up, lies below the camera everywhere)
+        return warprt.Scene(camera=cam if normal == (0, 1, 0) else high, shapes=(warprt.Plane(point=(0, 0, 0), normal=normal),),
+                            render=warprt.RenderSettings(spp=1, adaptive=False), depth_sensor=sensor)
+
+    for normal, kept in (((0, 1, 0), 1.0), ((0, 1, 1), 0.0)):
+        single = warprt.Renderer(floor(normal)).render(aovs=["z", "sensor_z"]).aovs
+        assert np.isfinite(single["z"]).all()
+        assert np.isfinite(single["sensor_z"]).mean() == kept
+        batch = warprt.BatchRenderer(floor(normal)).render(aovs=["sensor_z"]).frame(0, 0).aovs
+        assert np.isfinite(batch["sensor_z"]).mean() == kept

@@ -667,7 +667,8 @@ class Renderer:
                 if sensor_names:
                     made = apply_depth_sensor(self.scene.depth_sensor,
                                               {n: getattr(target.data.out, n) for n in target.names},
-                                              eye_poses(cam, dev), width * height, int(seed), sensor_names)
+                                              eye_poses(cam, dev), width * height, int(seed), sensor_names,
+                                              ortho=(cam.model == "orthographic",))
                     for name, a in made.items():
                         aov_maps[name] = a.reshape((height, width)) if as_warp else \
                             np.array(a.numpy(), np.float32, copy=True).reshape(height, width)

@@ -21,7 +21,8 @@ mask; no other kernel is compiled). Per pixel, with Z the pixel's exact camera-s
 1. **miss**: a pixel that sees nothing (Z = inf) is invalid.
 2. **grazing-angle dropout** (``dropout_start`` < 90): θ = the angle between the pixel's normal
    (turned towards the camera) and the direction from its visible point back to the camera's
-   centre at shutter open; the pixel is dropped with probability
+   centre at shutter open (an orthographic camera's rays are parallel: the direction is its
+   axis, towards the camera); the pixel is dropped with probability
    p(θ) = clamp((θ - start) / (end - start), 0, 1) (a step at ``dropout_end`` when the two are
    equal), drawn with one uniform number.
 3. **stereo** (``disparity_sigma`` or ``disparity_step`` > 0): the disparity d = f·b / Z gets a
@@ -49,6 +50,7 @@ import warp as wp
 
 from ._warp import build_once
 from .errors import RenderError
+from .poses import look_at
 from .sampling import hash2, hash_u32, u32_to_unit
 from .scene.description import DepthSensor
 
@@ -109,15 +111,17 @@ def _sensor_kernel():
     @wp.kernel(module="warprt_sensor", enable_backward=False)
     def depth_sensor(p: SensorParams, z: wp.array(dtype=float), depth: wp.array(dtype=float),
                      normal: wp.array(dtype=wp.vec3), position: wp.array(dtype=wp.vec3),
-                     eyes: wp.array(dtype=wp.transform), per_eye: int, with_depth: int,
-                     out_z: wp.array(dtype=float), out_depth: wp.array(dtype=float)):
+                     eyes: wp.array(dtype=wp.transform), per_eye: int, ortho: wp.array(dtype=int),
+                     with_depth: int, out_z: wp.array(dtype=float), out_depth: wp.array(dtype=float)):
         i = wp.tid()
         zc = z[i]
         key = hash2(hash_u32(p.seed ^ SENSOR_SALT), wp.uint32(i))
         valid = zc > 0.0 and zc < wp.inf
         if valid and p.dropouts != 0:
-            eye = wp.transform_get_translation(eyes[i // per_eye])
-            view = eye - position[i]
+            e = i // per_eye
+            view = wp.transform_get_translation(eyes[e]) - position[i]
+            if ortho[e % ortho.shape[0]] != 0:  # parallel rays: towards the camera along its axis
+                view = wp.quat_rotate(wp.transform_get_rotation(eyes[e]), wp.vec3(0.0, 0.0, 1.0))
             n = normal[i]
             c = float(1.0)
             if wp.length(view) > 0.0 and wp.length(n) > 0.0:
@@ -195,13 +199,15 @@ def split_aovs(names, scene) -> tuple[list, list, list]:
 
 
 def apply_depth_sensor(model: DepthSensor, aovs: dict, eyes, per_eye: int, seed: int, names=SENSOR_AOVS,
-                       out: dict | None = None) -> dict:
+                       out: dict | None = None, ortho=(False,)) -> dict:
     """The sensor outputs ``names`` (``sensor_z``, ``sensor_depth``) of the flat AOV buffers
     ``aovs`` (``z``; ``depth`` for sensor_depth; ``normal`` and ``position`` with dropouts: 1-D
     ``wp.array``s of one length, on one device): a dict of 1-D float ``wp.array``s. ``eyes``: a
     ``wp.array`` of ``wp.transform`` whose translations are the camera centres, one for each
     ``per_eye`` consecutive pixels; ``seed``: the render's. ``out``: arrays of a previous call
-    to write into (reused when they fit)."""
+    to write into (reused when they fit). ``ortho``: for each camera (eye e is camera
+    e % len(ortho)), whether it is orthographic: its view direction is then its axis (the
+    pose's local +z), not the line to its centre."""
     z = aovs["z"]
     dev, count = z.device, z.shape[0]
     with_depth = "sensor_depth" in names
@@ -216,16 +222,17 @@ def apply_depth_sensor(model: DepthSensor, aovs: dict, eyes, per_eye: int, seed:
         if a is None or a.shape[0] != count or a.device != dev:
             out[name] = wp.empty(count, dtype=float, device=dev) if name == "sensor_z" or with_depth else dummy_f
     wp.launch(_sensor_kernel(), dim=count, device=dev,
-              inputs=[sensor_params(model, seed), z, depth, normal, position, eyes, int(per_eye), int(with_depth),
+              inputs=[sensor_params(model, seed), z, depth, normal, position, eyes, int(per_eye),
+                      wp.array(np.asarray(ortho, np.int32), dtype=int, device=dev), int(with_depth),
                       out["sensor_z"], out["sensor_depth"]])
     return {name: out[name] for name in names}
 
 
 def eye_poses(camera, device) -> "wp.array":
-    """A one-element array of the camera's centre at shutter open (as a transform, the form a
+    """A one-element array of the camera's pose at shutter open (camera to world, the form a
     batch's camera poses take)."""
-    eye, _ = camera.pose(camera.shutter[0])
-    return wp.array(np.array([[*eye, 0.0, 0.0, 0.0, 1.0]], np.float32), dtype=wp.transform, device=device)
+    eye, target = camera.pose(camera.shutter[0])
+    return wp.array(look_at(eye, target, camera.up)[None].astype(np.float32), dtype=wp.transform, device=device)
 
 
 __all__ = ["SENSOR_AOVS", "apply_depth_sensor", "split_aovs"]

@@ -994,7 +994,7 @@ class BatchRenderer:
             self._sensor_out = made = apply_depth_sensor(
                 self.scene.depth_sensor, {n: getattr(target.data.out, n) for n in target.names},
                 self.camera_poses.reshape(-1), self.height * self.width, int(seed), sensor_names,
-                getattr(self, "_sensor_out", None))
+                getattr(self, "_sensor_out", None), ortho=[m.model == "orthographic" for m in self.camera_models])
             aov_maps.update({name: a.reshape(shape) for name, a in made.items()})
             aov_maps = {name: aov_maps[name] for name in asked}
         wp.synchronize_device(dev)
