@@ -1,5 +1,6 @@
-"""Synthetic robot-camera data from a Newton simulation: randomised scenes, every world at once,
-colour with a stereo depth camera's noisy depth beside the exact one.
+"""Synthetic robot-camera data from a Newton simulation: randomised, textured scenes, every world
+at once, through a calibrated camera with lens distortion, colour with a stereo depth camera's
+noisy depth beside the exact one.
 
     pip install 'warprt[newton]'
     python examples/robot_camera.py                      # 2 episodes x 4 worlds, 128x96, 6 steps, into out/robot/
@@ -10,8 +11,9 @@ rebuild, no recompile): each shape's colour and texture (a few procedural and bi
 projected triplanar or cubic, since Newton's boxes, spheres and capsules carry no UVs), the
 sun's intensity and direction, and the camera's pose around the table. Objects fall onto the
 table (Newton's XPBD solver) and every step renders every world through a head-mounted camera
-with a RealSense-like depth sensor (``warprt.DepthSensor``: stereo noise σ_Z = Z²·σ_d/(f·b),
-range limits, dropouts at grazing angles), the noise seeded by the step. For episode e, world w
+with lens distortion (OpenCV's model, as a calibration gives it) and a RealSense-like depth
+sensor (``warprt.DepthSensor``: stereo noise σ_Z = Z²·σ_d/(f·b), range limits, dropouts at
+grazing angles), the noise seeded by the step. For episode e, world w
 and step s it writes ``OUT/e{e}_w{w}_{s:03d}.png`` (colour), ``..._depth.png`` (the sensor's
 depth, near bright, no value black) and ``....exr`` (colour, exact ``Z`` and the sensor's
 ``sensor_z`` layer). The scene is made in :func:`make_scene` (textures, lights, the sensor), the
@@ -76,10 +78,16 @@ def make_textures(rng) -> list:
 
 
 def make_camera(width: int, height: int):
-    """The head camera's intrinsics and image (its pose is set per world)."""
+    """The head camera as its calibration gives it: OpenCV's intrinsics (a 58° vertical field of
+    view, the principal point a little off centre) and its distortion coefficients (k1, k2, p1,
+    p2, k3: a mild barrel, as a wide-angle lens has), for the image size asked for; its pose is
+    set per world."""
     import warprt
 
-    return warprt.Camera(fov=58.0, width=width, height=height)
+    f = 0.5 * height / np.tan(np.radians(29.0))
+    return warprt.Camera(model="opencv", fx=f, fy=f, cx=0.5 * (width - 1) + 0.02 * width,
+                         cy=0.5 * (height - 1) - 0.01 * height, distortion=[-0.12, 0.03, 0.001, -0.0005, 0.0],
+                         width=width, height=height)
 
 
 def make_scene(model, camera, rng, spp: int):

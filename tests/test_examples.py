@@ -4,6 +4,7 @@ are run by test_docs.py.)"""
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
@@ -141,3 +142,7 @@ def test_robot_camera_example_writes_colour_and_noisy_depth_per_episode_world_an
     first, second = (np.asarray(warprt.read_exr(tmp_path / f"e{e}_w0_000.exr")[0]) for e in (0, 1))
     assert np.abs(first - second).mean() > 1e-3
     assert "depth sensor:" in proc.stdout
+    # the second episode's looks are new arrays on the device: nothing rebuilt or compiled for them
+    line = next(l for l in proc.stdout.splitlines() if l.startswith("counters"))
+    first, last = (ast.literal_eval(part.split("frame ")[-1]) for part in line.split(" after the last "))
+    assert (first["rebuilds"], first["compiles"]) == (last["rebuilds"], last["compiles"]) == (2, 1)
