@@ -21,10 +21,11 @@ render: $(STAMP)
 	mkdir -p out
 	$(PY) -m warprt render scenes/showcase.toml -o out/showcase.png -o out/showcase.exr
 
-# the suite in TEST_WORKERS processes (pytest-xdist): a cold kernel cache compiles on every core
+# the suite in TEST_WORKERS processes (pytest-xdist): a cold kernel cache compiles on every core;
+# tests of one xdist_group run in one process (one compile of what they share)
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
 
 # mutation testing (not part of `make test`): one-line mistakes in the physics, each must be
 # caught by the tests listed for it in tests/mutations.toml

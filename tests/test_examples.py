@@ -113,6 +113,7 @@ def test_make_doc_images_documents_its_quick_options():
     assert bad.returncode == 2 and "--scale must be in (0, 1]" in bad.stderr
 
 
+@pytest.mark.xdist_group("newton examples")  # one worker: the second finds Newton's kernels compiled
 def test_newton_sim_example_writes_a_sequence_per_world_and_camera(tmp_path):
     pytest.importorskip("newton")
     proc = run_example("newton_sim.py", tmp_path, "--spp", "1", "--steps", "2", "--worlds", "2")
@@ -125,6 +126,7 @@ def test_newton_sim_example_writes_a_sequence_per_world_and_camera(tmp_path):
     assert first.split("first frame ")[1].rstrip(",") == last
 
 
+@pytest.mark.xdist_group("newton examples")  # one worker: the second finds Newton's kernels compiled
 def test_robot_camera_example_writes_colour_and_noisy_depth_per_episode_world_and_step(tmp_path):
     pytest.importorskip("newton")
     proc = run_example("robot_camera.py", tmp_path, "--spp", "1", "--steps", "2", "--worlds", "2", "--episodes", "2")

@@ -77,7 +77,11 @@ def pixel_hits(scene: Scene):
 
 
 def render(scene: Scene, **kw) -> np.ndarray:
-    return np.asarray(warprt.Renderer(scene).render(spp=1, progress=False, **kw).image, dtype=np.float64)
+    """The image of ``scene`` on the general kernel, which every feature set's texture code is
+    (the bitmap rectangle's test renders on its scene's own kernel): one kernel for the many
+    feature sets of these scenes keeps the suite's compiles few."""
+    r = warprt.Renderer(scene, features=warprt.Features.full())
+    return np.asarray(r.render(spp=1, progress=False, **kw).image, dtype=np.float64)
 
 
 # --- bitmaps and checkers on analytic shapes ---------------------------------------------------
