@@ -94,7 +94,10 @@ def progress_reader(proc: subprocess.Popen) -> list[str]:
 
     def read():
         while True:
-            c = proc.stderr.read(1)
+            try:
+                c = proc.stderr.read(1)
+            except ValueError:  # the test's communicate() read the rest and closed the pipe
+                return
             if not c:
                 return
             seen.append(c)
