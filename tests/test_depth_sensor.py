@@ -19,6 +19,7 @@ noise for the same seed.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -28,6 +29,8 @@ import warp as wp
 import warprt
 from warprt.errors import RenderError, SceneError
 from warprt.sensor import apply_depth_sensor
+
+from tests.test_aovs import scene as aov_scene
 
 N = 200_000  # pixels per known depth or angle
 F, B, SIGMA = 600.0, 0.05, 0.2  # focal length (px), baseline (m), disparity noise (px)
@@ -174,16 +177,8 @@ invalid = "zero"
 
 # --- renders: the scene of tests/test_aovs.py (its kernel), a wall facing the camera --------------
 
-def scene(sensor, width=16, height=12):
-    return warprt.Scene(
-        camera=warprt.Camera(eye=(0, 1.5, 4), look_at=(0, 0.5, 0), fov=40, width=width, height=height),
-        shapes=(warprt.Plane(point=(0, 0, 0), normal=(0.1, 1, 0), material="floor"),
-                warprt.Rectangle(corner=(0.05, 0.0, -0.5), edge1=(0, 1.2, 0), edge2=(3, 0, 0), material="wall"),
-                warprt.Sphere(center=(-0.6, 0.6, 0.3), radius=0.45, material="ball")),
-        materials={"floor": warprt.Material(kd=0.5), "wall": warprt.Material(kd=(0.2, 0.6, 0.3)),
-                   "ball": warprt.Material(kd=(0.8, 0.2, 0.1))},
-        lights=(warprt.PointLight(position=(1, 4, 3)),),
-        render=warprt.RenderSettings(sampler="sobol", spp=8, adaptive=False), depth_sensor=sensor)
+def scene(sensor):
+    return dataclasses.replace(aov_scene(), depth_sensor=sensor)
 
 
 def test_a_render_gives_the_sensor_outputs_next_to_the_exact_depth():

@@ -11,18 +11,7 @@ import pytest
 import warprt
 from benchmarks import corpus_scenes as cs
 from benchmarks import mitsuba_export as mx
-from tests.test_corpus import _mitsuba_batches, _same_within_noise
-
-
-@pytest.fixture(scope="module")
-def mi():
-    mitsuba = pytest.importorskip("mitsuba")
-    import drjit as dr
-
-    mitsuba.set_variant("scalar_rgb")
-    mitsuba.set_log_level(mitsuba.LogLevel.Error)
-    dr.set_thread_count(2)
-    return mitsuba
+from tests.test_corpus import _mitsuba_batches, _same_within_noise, mi  # noqa: F401 (mi: the fixture)
 
 
 def textured_scene(wrap: str) -> warprt.Scene:

@@ -818,6 +818,13 @@ class DiskLight:
 INVALID_DEPTH = ("nan", "zero")  # DepthSensor.invalid
 
 
+def _as_far_limit(value: Any, name: str) -> float:
+    """A far limit (a positive float32-range distance) or infinity, meaning none."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and value == math.inf:
+        return math.inf
+    return as_float(value, name, minimum=0.0, strict_min=True, float32="range")
+
+
 @checked_keywords
 @dataclass(frozen=True)
 class DepthSensor:
@@ -863,11 +870,7 @@ class DepthSensor:
                     raise SceneError("needed with disparity_sigma or disparity_step (the disparity is "
                                      "focal_length · baseline / Z)", name)
         set_field(self, "min_range", as_float(self.min_range, "min_range", minimum=0.0, float32="range"))
-        r = self.max_range
-        if isinstance(r, (int, float)) and not isinstance(r, bool) and r == math.inf:
-            set_field(self, "max_range", math.inf)
-        else:
-            set_field(self, "max_range", as_float(r, "max_range", minimum=0.0, strict_min=True, float32="range"))
+        set_field(self, "max_range", _as_far_limit(self.max_range, "max_range"))
         if self.max_range <= self.min_range:
             raise SceneError(f"must exceed min_range ({self.min_range:g}), got {self.max_range:g}", "max_range")
         for name in ("dropout_start", "dropout_end"):
@@ -931,11 +934,7 @@ class RenderSettings:
         set_field(self, "max_depth", as_int(self.max_depth, "max_depth", minimum=0, maximum=MAX_DEPTH_LIMIT))
         set_field(self, "min_weight", as_float(self.min_weight, "min_weight", minimum=0.0, maximum=1.0))
         set_field(self, "t_min", as_float(self.t_min, "t_min", minimum=0.0, float32="range"))
-        t_max = self.t_max
-        if isinstance(t_max, (int, float)) and not isinstance(t_max, bool) and t_max == math.inf:
-            set_field(self, "t_max", math.inf)
-        else:
-            set_field(self, "t_max", as_float(t_max, "t_max", minimum=0.0, strict_min=True, float32="range"))
+        set_field(self, "t_max", _as_far_limit(self.t_max, "t_max"))
         if self.t_max <= self.t_min:
             raise SceneError(f"t_max ({self.t_max:g}) must exceed t_min ({self.t_min:g})", "t_max")
         set_field(self, "clamp", as_float(self.clamp, "clamp", minimum=0.0, strict_min=True, maximum=CLAMP_LIMIT))
