@@ -479,6 +479,16 @@ def _camera_pose_pair(cam) -> tuple:
             np.concatenate([eye1, camera_quaternion(eye1, look1, cam.up)]))
 
 
+def _camera_arrays(models, worlds: int, device) -> tuple:
+    """The device arrays of a batch's cameras: the poses at times 0 and 1 in every world (W, C),
+    each camera's ``fov`` entry and its record."""
+    t0, t1 = zip(*(_camera_pose_pair(m) for m in models))
+    poses = tuple(wp.array(np.tile(np.array(t, np.float32)[None], (worlds, 1, 1)), dtype=wp.transform, device=device)
+                  for t in (t0, t1))
+    fov = wp.array(np.array([_fov_entry(m) for m in models], np.float32), dtype=float, device=device)
+    return (*poses, fov, wp.array([camera_data(m) for m in models], dtype=CameraData, device=device))
+
+
 def _fov_entry(cam) -> float:
     """A camera's ``fov`` entry: its field of view; for one given by intrinsics (which ignores
     the entry), the vertical field of view of a pinhole with its fy, 2 atan(height / 2 fy)."""
@@ -601,14 +611,8 @@ class BatchRenderer:
         self._n_shapes, self._n_lights = S, len(lights)
         self._directional_lights = [int(isinstance(light, DirectionalLight)) for light in lights]
         self._light_index = [i for i, light in enumerate(scene.lights) if isinstance(light, (PointLight, DirectionalLight))]
-        models = models or [cam] * C
-        t0, t1 = zip(*(_camera_pose_pair(m) for m in models))
-        self.camera_poses = wp.array(np.tile(np.array(t0, np.float32)[None], (W, 1, 1)), dtype=wp.transform, device=dev)
-        self.camera_poses_end = wp.array(np.tile(np.array(t1, np.float32)[None], (W, 1, 1)), dtype=wp.transform,
-                                         device=dev)
-        self.fov = wp.array(np.array([_fov_entry(m) for m in models], np.float32), dtype=float, device=dev)
-        self._lenses = wp.array([camera_data(m) for m in models], dtype=CameraData, device=dev)
-        self.camera_models = tuple(models)
+        self.camera_models = tuple(models or [cam] * C)
+        self.camera_poses, self.camera_poses_end, self.fov, self._lenses = _camera_arrays(self.camera_models, W, dev)
         self._cams = wp.zeros(W * C, dtype=CameraData, device=dev)
         self.counters["host_transfers"] += 7
 
@@ -741,13 +745,9 @@ class BatchRenderer:
         if not self.features.lens and any(m.aperture > 0.0 for m in models):
             raise RenderError("cameras: a thin lens (aperture > 0) in a batch built without one (give the cameras "
                               "when the BatchRenderer is made, or features=warprt.Features(lens=True))")
-        t0, t1 = zip(*(_camera_pose_pair(m) for m in models))
-        for array, t in ((self.camera_poses, t0), (self.camera_poses_end, t1)):  # (as the constructor's)
-            wp.copy(array, wp.array(np.tile(np.array(t, np.float32)[None], (self.worlds, 1, 1)), dtype=wp.transform,
-                                    device=self.device))
-        wp.copy(self.fov, wp.array(np.array([_fov_entry(m) for m in models], np.float32), dtype=float,
-                                   device=self.device))
-        wp.copy(self._lenses, wp.array([camera_data(m) for m in models], dtype=CameraData, device=self.device))
+        for array, made in zip((self.camera_poses, self.camera_poses_end, self.fov, self._lenses),
+                               _camera_arrays(models, self.worlds, self.device)):
+            wp.copy(array, made)
         self.camera_models = tuple(models)
 
     def set_camera_poses(self, poses, end=None) -> None:
@@ -758,9 +758,9 @@ class BatchRenderer:
         shape = (self.worlds, self.cameras)
         start = self._check_poses(poses, shape, "camera_poses")
         close = self._check_poses(poses if end is None else end, shape, "camera_poses_end")
-        for name, given in (("camera_poses", poses), ("camera_poses_end", end)):
+        for name, given, checked in (("camera_poses", poses, start), ("camera_poses_end", end, close)):
             if given is not None and not isinstance(given, wp.array):  # (device arrays are not read back)
-                warn_rolled((start if name == "camera_poses" else close).numpy(), self.up_axis, name)
+                warn_rolled(checked.numpy(), self.up_axis, name)
         wp.copy(self.camera_poses, start)
         wp.copy(self.camera_poses_end, close)
 
